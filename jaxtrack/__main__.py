@@ -1,0 +1,5 @@
+import sys
+
+from jaxtrack.cli import main
+
+sys.exit(main())
