@@ -33,8 +33,8 @@ def range_bearing(x: Array, origin: Array | None = None) -> Array:
 
     .. math:: h(x) = [\sqrt{\Delta x^2 + \Delta y^2},\; \operatorname{atan2}(\Delta y, \Delta x)].
 
-    Use with ``residual=range_bearing_residual`` so the bearing innovation is wrapped. The range
-    uses a safe square root (finite gradient at the sensor position).
+    Use with ``residual=range_bearing_residual`` so the bearing innovation is wrapped. Range and
+    bearing are computed safely at the sensor position itself (value 0, finite gradients).
 
     Args:
       x: [n] state with the position first. origin: optional [2] sensor position.
@@ -47,9 +47,11 @@ def range_bearing(x: Array, origin: Array | None = None) -> Array:
     """
     d = x[:2] if origin is None else x[:2] - origin
     sq = d[0] ** 2 + d[1] ** 2
-    safe = jnp.where(sq > 0, sq, 1.0)
-    rng = jnp.where(sq > 0, jnp.sqrt(safe), 0.0)
-    return jnp.stack([rng, jnp.arctan2(d[1], d[0])])
+    away = sq > 0
+    rng = jnp.where(away, jnp.sqrt(jnp.where(away, sq, 1.0)), 0.0)
+    bearing = jnp.where(away, jnp.arctan2(jnp.where(away, d[1], 0.0), jnp.where(away, d[0], 1.0)),
+                        0.0)
+    return jnp.stack([rng, bearing])
 
 
 def range_bearing_residual(a: Array, b: Array) -> Array:

@@ -1,0 +1,55 @@
+"""Package-level behaviour: import hygiene, README examples, the demo command."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_import_jaxtrack_does_not_import_mujoco():
+    code = ("import sys, jaxtrack, jaxtrack.filters, jaxtrack.models, jaxtrack.demo; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in ('mujoco', 'mujoco_mjx')]; "
+            "print(bad); sys.exit(1 if bad else 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_readme_usage_example_runs():
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert blocks, "README has no python example"
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), {})
+
+
+def test_readme_quickstart_has_exactly_two_commands_and_ci_runs_the_second():
+    text = (ROOT / "README.md").read_text()
+    quick = text.split("## Quickstart", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    lines = [ln for ln in quick.splitlines() if ln.strip()]
+    assert len(lines) == 2
+    assert "jaxtrack demo" in lines[0] and "pytest" in lines[1]
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert ".venv/bin/pip install -e \".[test]\"" in ci
+
+
+def test_demo_command_prints_a_results_table_with_consistent_filters():
+    out = subprocess.run([sys.executable, "-m", "jaxtrack", "demo", "--episodes", "8",
+                          "--steps", "30"], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    rows = {line.split("  ")[0].strip(): line for line in out.stdout.splitlines()}
+    kf = [r for k, r in rows.items() if k.startswith("KF")]
+    assert kf, out.stdout
+    rmse_kf = float(kf[0].split()[-2])
+    raw = [r for k, r in rows.items() if k.startswith("raw")]
+    rmse_raw = float(raw[0].split()[-1])
+    # Filtering must beat the raw detections it is given.
+    assert rmse_kf < rmse_raw
+    assert "episodes/s" in out.stdout
+
+
+def test_cli_rejects_bad_arguments():
+    out = subprocess.run([sys.executable, "-m", "jaxtrack", "demo", "--episodes", "0"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode != 0 and "positive" in out.stderr
