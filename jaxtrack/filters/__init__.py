@@ -1,5 +1,5 @@
-"""Bayesian filters: Kalman, extended and unscented Kalman, heading filter."""
+"""Bayesian filters: Kalman, extended and unscented Kalman, particle, heading filter."""
 
-from jaxtrack.filters import ekf, heading, kalman, ukf
+from jaxtrack.filters import ekf, heading, kalman, particle, ukf
 
-__all__ = ["kalman", "ekf", "ukf", "heading"]
+__all__ = ["kalman", "ekf", "ukf", "particle", "heading"]
