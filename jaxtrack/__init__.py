@@ -5,8 +5,8 @@ simulations (in the separate ``sims`` package) for batched Monte-Carlo evaluatio
 tuning. ``import jaxtrack`` never imports MuJoCo.
 """
 
-from jaxtrack import angles, filters, models
+from jaxtrack import angles, filters, models, tracking
 
 __version__ = "0.1.0"
 
-__all__ = ["angles", "filters", "models", "__version__"]
+__all__ = ["angles", "filters", "models", "tracking", "__version__"]
