@@ -5,8 +5,18 @@ simulations (in the separate ``sims`` package) for batched Monte-Carlo evaluatio
 tuning. ``import jaxtrack`` never imports MuJoCo.
 """
 
-from jaxtrack import angles, filters, models, tracking
+import importlib
+
+from jaxtrack import angles, filters, models, montecarlo, tracking, tuning
 
 __version__ = "0.1.0"
 
-__all__ = ["angles", "filters", "models", "tracking", "__version__"]
+__all__ = ["angles", "filters", "models", "montecarlo", "plotting", "tracking", "tuning",
+           "__version__"]
+
+
+def __getattr__(name):
+    # matplotlib is only imported when plots are asked for.
+    if name == "plotting":
+        return importlib.import_module("jaxtrack.plotting")
+    raise AttributeError(f"module 'jaxtrack' has no attribute {name!r}")

@@ -1,0 +1,260 @@
+r"""Batched Monte-Carlo evaluation of an episode function over keys and devices.
+
+``episode_fn(key, params) -> pytree of per-episode metrics`` is written for *one* episode;
+`evaluate` runs it for ``num_episodes`` keys derived from one key, in batches of one fixed size
+(one compile), each batch sharded over the episode axis across every device JAX sees
+(`jax.sharding.Mesh` + `NamedSharding`). With several processes (`jax.distributed.initialize`)
+the same code shards across hosts: every process builds the same global batch of keys and
+contributes its addressable shards.
+
+Episode ``i`` always uses ``jax.random.split(key, num_episodes)[i]``, so results for a given key
+do not depend on the batch size or the number of devices. Each finished batch is written to
+``out`` (an ``.npz`` file, replaced atomically), so an interrupted run resumes where it stopped
+and loses nothing already computed.
+
+The summary gives, for every scalar metric, the mean, standard deviation, median, 5 / 95 %
+quantiles and the 95 % confidence interval of the mean (normal approximation,
+:math:`\bar x \pm 1.96\, s / \sqrt{n}`), over the finite values (non-finite ones are counted).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+__all__ = ["Summary", "MonteCarloResult", "evaluate", "summarize", "format_summary"]
+
+
+class Summary(NamedTuple):
+    """Statistics of one scalar metric over episodes (finite values only)."""
+
+    mean: float
+    std: float
+    median: float
+    q05: float
+    q95: float
+    ci_low: float
+    ci_high: float
+    num_finite: int
+    num_nonfinite: int
+
+
+class MonteCarloResult(NamedTuple):
+    """Output of `evaluate`.
+
+    Attributes:
+      metrics: the pytree returned by ``episode_fn`` with a leading [num_episodes] axis
+        (numpy arrays).
+      summary: ``{metric name: Summary}`` for every scalar-per-episode leaf.
+      seconds: wall time of the batches computed in this call (excluding resumed ones).
+      episodes_per_second: throughput of this call (first batch includes compilation).
+      num_devices: devices the batches were sharded over.
+    """
+
+    metrics: Any
+    summary: dict
+    seconds: float
+    episodes_per_second: float
+    num_devices: int
+
+
+def evaluate(episode_fn: Callable, params, key, num_episodes: int,
+             batch_size: int | None = None, out: str | os.PathLike | None = None,
+             progress: bool = True, devices=None,
+             on_batch: Callable | None = None) -> MonteCarloResult:
+    """Run ``episode_fn`` over ``num_episodes`` keys in sharded batches and summarise.
+
+    Args:
+      episode_fn: ``episode_fn(key, params) -> pytree`` of per-episode metrics (scalars, or
+        arrays such as trajectories).
+      params: parameter pytree passed to every episode (traced, so new values do not
+        recompile).
+      key: PRNG key; episode ``i`` uses ``jax.random.split(key, num_episodes)[i]``.
+      num_episodes: number of episodes.
+      batch_size: episodes per compiled call (default: all, capped at 1024); rounded up to a
+        multiple of the device count. The last batch is padded, so there is one compile.
+      out: optional ``.npz`` path; finished batches are saved there after every batch and a
+        later call with the same key and ``num_episodes`` resumes from it.
+      progress: print a progress line per batch (episodes/s) to stderr.
+      devices: devices to shard over (default: all of ``jax.devices()``).
+      on_batch: optional ``on_batch(done, num_episodes)`` called after each saved batch.
+
+    Returns:
+      `MonteCarloResult`; the summary table is also printed when ``progress`` is True.
+
+    Example:
+      >>> def episode(key, params):
+      ...     return {"error": jnp.abs(jax.random.normal(key)) * params["scale"]}
+      >>> res = evaluate(episode, {"scale": 1.0}, jax.random.PRNGKey(0), 10_000)
+      >>> res.summary["error"].mean
+    """
+    if not callable(episode_fn):
+        raise TypeError("episode_fn must be callable as episode_fn(key, params)")
+    if int(num_episodes) != num_episodes or num_episodes < 1:
+        raise ValueError(f"num_episodes must be a positive integer; got {num_episodes}")
+    devices = list(jax.devices() if devices is None else devices)
+    n_dev = len(devices)
+    if batch_size is None:
+        batch_size = min(num_episodes, 1024)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be positive; got {batch_size}")
+    batch_size = int(math.ceil(batch_size / n_dev) * n_dev)
+
+    keys = jax.random.split(key, num_episodes)
+    key_data = np.asarray(jax.random.key_data(keys)) if _is_typed_key(keys) else np.asarray(keys)
+    fingerprint = hashlib.sha256(key_data.tobytes()).hexdigest()[:16]
+
+    run, sharding = _compiled(episode_fn, tuple(devices))
+
+    done, chunks = 0, []
+    if out is not None:
+        out = Path(out)
+        if out.suffix != ".npz":
+            raise ValueError(f"out must be an .npz path; got {out}")
+        done, chunks = _load(out, fingerprint, num_episodes)
+
+    treedef = None
+    if chunks:
+        treedef = jax.tree_util.tree_structure(
+            jax.eval_shape(lambda k: episode_fn(k, params), keys[0]))
+    start = time.perf_counter()
+    computed = 0
+    num_batches = math.ceil(num_episodes / batch_size)
+    while done < num_episodes:
+        count = min(batch_size, num_episodes - done)
+        idx = np.arange(done, done + batch_size) % num_episodes  # pad by wrapping: one shape
+        batch_keys = _shard(keys, idx, sharding)
+        t0 = time.perf_counter()
+        outputs = run(batch_keys, params)
+        outputs = jax.tree_util.tree_map(lambda x: _gather(x)[:count], outputs)
+        dt = time.perf_counter() - t0
+        leaves, treedef = jax.tree_util.tree_flatten(outputs)
+        chunks.append(leaves)
+        done += count
+        computed += count
+        if out is not None:
+            _save(out, chunks, done, fingerprint, num_episodes)
+        if progress:
+            _progress(done, num_episodes, math.ceil(done / batch_size), num_batches,
+                      count / max(dt, 1e-9))
+        if on_batch is not None:
+            on_batch(done, num_episodes)
+    seconds = time.perf_counter() - start
+    leaves = [np.concatenate(parts, 0) for parts in zip(*chunks)]
+    metrics = jax.tree_util.tree_unflatten(treedef, leaves)
+    summary = summarize(metrics)
+    if progress:
+        print(format_summary(summary, num_episodes), file=sys.stderr)
+    rate = computed / seconds if computed else 0.0
+    return MonteCarloResult(metrics, summary, seconds, rate, n_dev)
+
+
+def summarize(metrics) -> dict:
+    """``{name: Summary}`` for every leaf of ``metrics`` with shape [num_episodes]."""
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(metrics):
+        x = np.asarray(leaf)
+        if x.ndim != 1:
+            continue
+        name = jax.tree_util.keystr(path).strip("[]'\".") or "value"
+        name = name.replace("']['", ".").replace("'", "")
+        finite = x[np.isfinite(x)].astype(np.float64)
+        n = finite.size
+        if n == 0:
+            nan = float("nan")
+            out[name] = Summary(nan, nan, nan, nan, nan, nan, nan, 0, int(x.size))
+            continue
+        mean, std = float(finite.mean()), float(finite.std(ddof=1)) if n > 1 else 0.0
+        half = 1.96 * std / math.sqrt(n)
+        q05, med, q95 = np.quantile(finite, [0.05, 0.5, 0.95])
+        out[name] = Summary(mean, std, float(med), float(q05), float(q95), mean - half,
+                            mean + half, n, int(x.size - n))
+    return out
+
+
+def format_summary(summary: dict, num_episodes: int | None = None) -> str:
+    """A fixed-width table of a summary dict."""
+    head = (f"{'metric':<24}{'mean':>11}{'std':>11}{'median':>11}{'5%':>11}{'95%':>11}"
+            f"{'95% CI of mean':>26}{'non-finite':>11}")
+    lines = [] if num_episodes is None else [f"Monte-Carlo summary over {num_episodes} episodes"]
+    lines += [head, "-" * len(head)]
+    for name, s in summary.items():
+        ci = f"[{s.ci_low:.4g}, {s.ci_high:.4g}]"
+        lines.append(f"{name:<24}{s.mean:>11.4g}{s.std:>11.4g}{s.median:>11.4g}{s.q05:>11.4g}"
+                     f"{s.q95:>11.4g}{ci:>26}{s.num_nonfinite:>11d}")
+    return "\n".join(lines)
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled(episode_fn, devices):
+    """The batched, sharded episode function; cached so repeated evaluations reuse compiles."""
+    mesh = Mesh(np.array(devices), ("episodes",))
+    sharding = NamedSharding(mesh, PartitionSpec("episodes"))
+    return jax.jit(jax.vmap(episode_fn, in_axes=(0, None)), out_shardings=sharding), sharding
+
+
+def _is_typed_key(keys) -> bool:
+    return jnp.issubdtype(keys.dtype, jax.dtypes.prng_key)
+
+
+def _shard(keys, idx, sharding):
+    """Global batch keys[idx], built shard by shard (works with several processes)."""
+    host = keys[idx]
+    if jax.process_count() == 1:
+        return jax.device_put(host, sharding)
+    local = np.asarray(jax.random.key_data(host)) if _is_typed_key(host) else np.asarray(host)
+    arr = jax.make_array_from_callback(local.shape, sharding, lambda i: local[i])
+    return jax.random.wrap_key_data(arr) if _is_typed_key(host) else arr
+
+
+def _gather(x):
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
+
+
+def _save(path: Path, chunks, done, fingerprint, num_episodes):
+    if jax.process_index() != 0:
+        return
+    leaves = [np.concatenate(parts, 0) for parts in zip(*chunks)]
+    arrays = {f"leaf_{i}": a for i, a in enumerate(leaves)}
+    tmp = path.with_name(path.name + ".tmp.npz")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(tmp, __done__=done, __fingerprint__=fingerprint, __num_episodes__=num_episodes,
+             __num_leaves__=len(leaves), **arrays)
+    os.replace(tmp, path)
+
+
+def _load(path: Path, fingerprint, num_episodes):
+    if not path.exists():
+        return 0, []
+    with np.load(path) as f:
+        if str(f["__fingerprint__"]) != fingerprint or int(f["__num_episodes__"]) != num_episodes:
+            raise ValueError(f"{path} holds results of a different run (other key or "
+                             "num_episodes); remove it or choose another out path")
+        done = int(f["__done__"])
+        leaves = [f[f"leaf_{i}"] for i in range(int(f["__num_leaves__"]))]
+    return done, [leaves]
+
+
+def _progress(done, total, batch, num_batches, rate):
+    bar_len = 24
+    filled = int(bar_len * done / total)
+    bar = "#" * filled + "." * (bar_len - filled)
+    end = "\n" if done >= total or not sys.stderr.isatty() else "\r"
+    print(f"[{bar}] batch {batch}/{num_batches}  {done}/{total} episodes  {rate:,.0f} episodes/s",
+          end=end, file=sys.stderr, flush=True)
