@@ -9,10 +9,16 @@ model and recombined by the unscented transform
     P_y = \sum_i W^c_i (\mathcal{Y}_i - \bar y)(\mathcal{Y}_i - \bar y)^T + \text{noise}.
 
 Numerics. With the common ``alpha = 1e-3`` the central mean weight is about
-:math:`1 - 1/\alpha^2 \approx -10^6`; the textbook sum then cancels catastrophically in float32.
-We compute the same quantity as :math:`\mathcal{Y}_0 + \sum_{i>0} W^m_i(\mathcal{Y}_i -
-\mathcal{Y}_0)` (the weights sum to one), which is exact in exact arithmetic and keeps float32
-usable. Covariances are symmetrised after every step, and sigma points are drawn with
+:math:`1 - 1/\alpha^2 \approx -10^6`. We compute the mean as :math:`\mathcal{Y}_0 +
+\sum_{i>0} W^m_i(\mathcal{Y}_i - \mathcal{Y}_0)` (the weights sum to one), which is exact in
+exact arithmetic and avoids the cancellation of the textbook sum; but the points then sit
+:math:`\alpha\sqrt{n}` standard deviations from the mean, so rounding in ``f`` and ``h`` is still
+amplified by about :math:`1/\alpha^2`: in float32 ``alpha = 1e-3`` loses about two digits per
+step and long runs lose positive definiteness (measured in the tests). The default scheme of
+`predict` / `update` / `filter` is therefore ``merwe_points(alpha=1.0, beta=2.0, kappa=0.0)``,
+whose weights are all non-negative (:math:`W_0^m = 0`, :math:`W_0^c = 2`), so every unscented
+covariance is a sum of positive semi-definite terms; pass ``points=merwe_points()`` for filterpy's
+usual small-alpha scheme in float64. Covariances are symmetrised after every step, and sigma points are drawn with
 `jaxtrack.filters._linalg.safe_cholesky`: if the Cholesky factor of a drifted covariance is not
 finite, it is retried with a relative diagonal jitter (1e-9 in float64, 1e-5 in float32), and
 failing that the square root of the clipped diagonal is used. The jitter only acts where the
@@ -106,7 +112,8 @@ def julier_points(kappa: float = 0.0) -> SigmaPoints:
     return SigmaPoints("julier", 1.0, 0.0, float(kappa))
 
 
-DEFAULT_POINTS = merwe_points()
+# Non-negative weights: robust in float32 and over long runs (see the module docstring).
+DEFAULT_POINTS = merwe_points(alpha=1.0, beta=2.0, kappa=0.0)
 
 
 def sigma_points(state: Gaussian, points: SigmaPoints = DEFAULT_POINTS) -> Array:
@@ -154,7 +161,7 @@ def predict(state: Gaussian, f: Callable, Q: Array, u: Array | None = None,
       f: transition ``f(x [n], u) -> [n]`` (``f(x)`` when ``u`` is None).
       Q: [n, n] process-noise covariance.
       u: optional control input.
-      points: sigma-point scheme (`merwe_points()` by default).
+      points: sigma-point scheme (default ``merwe_points(alpha=1.0)``, see the module notes).
       x_mean_fn, residual_x: optional mean / difference functions for angle states.
 
     Returns:

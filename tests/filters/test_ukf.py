@@ -12,7 +12,7 @@ Tolerances (float64):
   amplified by the weights (~eps / alpha^2), not to 1e-15. Measured: up to 4e-10 (predict),
   6e-10 (posterior cov) and 7e-9 (log-likelihood) for alpha = 1e-3; <= 5e-14 for alpha = 0.5
   and Julier points. Print all measured errors with JAXTRACK_REPORT_ERRORS=1.
-- linear f and h vs the KF, default points: 1e-8 (the unscented transform is exact for linear
+- linear f and h vs the KF, alpha = 1e-3 points: 1e-8 (the unscented transform is exact for linear
   maps; the difference is the same amplified rounding; measured 3e-10).
 - gradients vs finite differences 1e-6; float32 vs float64 1e-4; vmap vs loop 1e-12 (all with
   alpha = 1 points, see WELL_SCALED_POINTS).
@@ -161,13 +161,13 @@ def test_filter_with_linear_models_equals_kalman_filter(kf_filter, cv_problem, a
 # Masks, NaN, gradients, vmap, float32 on the CV + range-bearing problem
 
 
-# The default Merwe points (alpha = 1e-3) sit 2e-3 standard deviations from the mean and are
+# Small-alpha Merwe points (`merwe_points()`, alpha = 1e-3) sit 2e-3 standard deviations from the mean and are
 # recombined with weights ~1/(2 alpha^2 n) ~ 1e5: rounding in f and h is amplified ~1e5 times.
 # In float64 that makes the log-likelihood noisy at ~4e-10 relative (central differences with
 # h = 1e-5 then agree with the exact gradient only to 1e-4; with h = 1e-3 to 7e-7), and in
-# float32 it ruins the filter (see test_float32_predict_with_default_points_matches_float64).
-# The tests below therefore use alpha = 1 points, where none of this happens; the default
-# points are checked against filterpy and the KF above.
+# float32 it ruins the filter (see test_float32_predict_with_small_alpha_points_matches_float64).
+# The tests below therefore use alpha = 1 points (also the library default), where none of this
+# happens; the small-alpha points are checked against filterpy and the KF above.
 WELL_SCALED_POINTS = ukf.merwe_points(alpha=1.0, beta=2.0, kappa=0.0)
 RB_PRIOR = Gaussian(np.array([3.0, 4.0, 0.5, 0.1]), np.diag([0.2, 0.3, 0.5, 0.5]))
 RB_NOISE = np.array([[0.1, 0.004], [0.004, 0.01]])
@@ -283,17 +283,17 @@ def test_float32_matches_float64(cv_range_bearing_problem, cv_rb_ukf, assert_clo
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "float32 with the default alpha = 1e-3: rounding of f (~6e-8 |f(x)|) is amplified by the "
+    "float32 with alpha = 1e-3 (filterpy's usual choice; not our default): rounding of f (~6e-8 |f(x)|) is amplified by the "
     "weights ~1/(2 alpha^2 n) ~ 1e5. Measured on this state: predicted mean 1.0e-2 and cov "
     "4.7e-2 scale-relative error (3e-8 and 4e-7 with alpha = 1); a predict + update step on "
     "range-bearing: mean 1e-2, cov and log-likelihood 0.2. With alpha = 1 a 50-step float32 "
     "run is within 6e-6 of float64 (test_float32_matches_float64)."))
-def test_float32_predict_with_default_points_matches_float64(assert_close):
+def test_float32_predict_with_small_alpha_points_matches_float64(assert_close):
     F, Q = motion.constant_velocity(0.1, 0.5)
     F, Q = np.asarray(F), np.asarray(Q)
     state = Gaussian(np.array([6.0, 3.0, -0.5, 0.8]), np.diag([0.1, 0.1, 0.1, 0.1]))
     predict = jax.jit(lambda s: ukf.predict(s, lambda x: x @ F.T.astype(x.dtype),
-                                            Q.astype(s.cov.dtype)))
+                                            Q.astype(s.cov.dtype), points=ukf.merwe_points()))
     pred64 = jax.device_get(predict(state))
     pred32 = jax.device_get(predict(jax.tree.map(lambda a: a.astype(np.float32), state)))
     assert pred32.mean.dtype == np.float32
@@ -305,11 +305,16 @@ def test_float32_predict_with_default_points_matches_float64(assert_close):
 # Long run on a badly scaled model
 
 
+@pytest.mark.parametrize("dtype,points", [
+    (np.float64, ukf.DEFAULT_POINTS), (np.float64, ukf.merwe_points()),
+    (np.float32, ukf.DEFAULT_POINTS)], ids=["f64-default", "f64-alpha1e-3", "f32-default"])
 def test_long_badly_scaled_run_keeps_covariances_symmetric_positive_definite(
-        badly_scaled_problem, assert_spd_sequence):
-    init, zs, F, Q, H, R = badly_scaled_problem
-    run = jax.jit(lambda i, z: ukf.filter(i, z, lambda x: F @ x, Q, lambda x: H @ x, R))
+        badly_scaled_problem, assert_spd_sequence, dtype, points):
+    init, zs, F, Q, H, R = jax.tree.map(lambda a: np.asarray(a, dtype), badly_scaled_problem)
+    run = jax.jit(lambda i, z: ukf.filter(i, z, lambda x: F @ x, Q, lambda x: H @ x, R,
+                                          points=points))
     res = jax.device_get(run(init, zs))
+    assert res.covs.dtype == dtype
     assert res.covs.shape == (10_000, 4, 4)
     assert_spd_sequence(res.covs)
     assert np.all(np.isfinite(res.log_likelihoods))
