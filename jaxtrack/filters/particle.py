@@ -142,6 +142,9 @@ def _cdf(log_weights):
 
 
 def _invert(cdf, u):
+    # (U + i) / num can round up to 1 (float32, large num), which would select the last particle
+    # even at zero weight; below 1 the search stops at the last particle with positive weight.
+    u = jnp.minimum(u, 1.0 - jnp.finfo(cdf.dtype).epsneg)
     idx = jnp.searchsorted(cdf, u, side="right", method="scan")
     return jnp.clip(idx, 0, cdf.shape[0] - 1).astype(jnp.int32)
 
@@ -192,7 +195,9 @@ def residual(key: Array, log_weights: Array, num: int | None = None) -> Array:
     deterministic = jnp.clip(jnp.searchsorted(cum, slots, side="right", method="scan"), 0, n - 1)
     rest = scaled - counts
     log_rest = jnp.where(rest > 0, jnp.log(jnp.where(rest > 0, rest, 1.0)), -jnp.inf)
-    drawn = multinomial(key, log_rest, num)
+    # Unsorted uniforms: the last slots must hold i.i.d. draws, not the largest of num sorted
+    # ones (which would favour high-index particles).
+    drawn = _invert(_cdf(log_rest), jax.random.uniform(key, (num,), dtype=w.dtype))
     return jnp.where(slots < cum[-1], deterministic, drawn).astype(jnp.int32)
 
 
@@ -483,6 +488,10 @@ def _step(key, ps, z, transition, log_likelihood, scheme, ess_threshold, mask, v
     n_p = ps.log_weights.shape[-1]
     k_res, k_prop, k_reg = jax.random.split(key, 3)
     present = jnp.asarray(True if mask is None else mask, bool)
+    if mask is not None:
+        # A masked measurement may be NaN padding: its likelihood is discarded, but the
+        # gradient of a discarded NaN is still NaN, so the likelihood sees zeros instead.
+        z = jax.tree_util.tree_map(lambda a: jnp.where(present, a, jnp.zeros_like(a)), z)
     lw = normalize(ps.log_weights)
     do_resample = present & (ess(lw) < ess_threshold * n_p)
     res_x, res_lw = scheme.apply(k_res, ps.particles, lw)
