@@ -197,8 +197,10 @@ def batch(fn, keys, problem):
 def jaxtrack_kf():
     keys = ("m0", "P0", "F", "Q", "H", "R", "zs")
 
+    # Like-for-like outputs: dynamax returns the filtered moments and the log-likelihood only,
+    # so jaxtrack is asked not to store its one-step predictions either.
     def run(m0, P0, F, Q, H, R, zs):
-        return kalman.filter(kalman.Gaussian(m0, P0), zs, F, Q, H, R)
+        return kalman.filter(kalman.Gaussian(m0, P0), zs, F, Q, H, R, return_predicted=False)
 
     return keys, run
 
@@ -275,7 +277,8 @@ def jaxtrack_ukf(scheme):
 
     def run(m0, P0, Q, R, zs):
         return ukf.filter(kalman.Gaussian(m0, P0), zs, f, Q, measurement.range_bearing, R,
-                          points=points, residual_z=measurement.range_bearing_residual)
+                          points=points, residual_z=measurement.range_bearing_residual,
+                          return_predicted=False)
 
     return keys, run
 

@@ -10,6 +10,7 @@ Cholesky on 1000 matrices, see ``benchmarks/filters.py``). Larger matrices use L
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jax import lax
 from jax.scipy.linalg import solve_triangular
 
 UNROLL_MAX = 8
@@ -91,26 +92,28 @@ def gaussian_log_density(low, r):
 
 
 def safe_cholesky(a, rel_jitter=None):
-    """Cholesky of a covariance that should be positive definite but may have drifted.
+    """Cholesky of a covariance [n, n] that should be positive definite but may have drifted.
 
     The matrix is symmetrised first. If the factor is not finite, the factorisation is retried on
     ``a + eps * mean(diag(a)) * I`` with ``eps`` = 1e-9 (float64) or 1e-5 (float32); if that also
-    fails, the square root of the clipped diagonal is used. The fallback is chosen with
-    `jnp.where`, so it is jit/vmap safe; it only changes the result when the first factorisation
-    failed.
+    fails, the square root of the clipped diagonal is used. The fallback sits behind `lax.cond`,
+    so a single episode only pays for it when the first factorisation failed (under `vmap` both
+    branches run and the result is selected).
     """
     a = symmetrize(a)
-    n = a.shape[-1]
     if rel_jitter is None:
         rel_jitter = 1e-9 if a.dtype == jnp.float64 else 1e-5
     low = cholesky(a)
-    ok = jnp.all(jnp.isfinite(low), axis=(-2, -1), keepdims=True)
+    ok = jnp.all(jnp.isfinite(low))
+    return lax.cond(ok, lambda: low, lambda: _jittered_cholesky(a, rel_jitter))
+
+
+def _jittered_cholesky(a, rel_jitter):
+    n = a.shape[-1]
     diag = jnp.diagonal(a, axis1=-2, axis2=-1)
     scale = jnp.maximum(jnp.mean(jnp.abs(diag), -1), jnp.finfo(a.dtype).tiny)
     eye = jnp.eye(n, dtype=a.dtype)
-    jittered = a + (rel_jitter * scale)[..., None, None] * eye
-    low_j = cholesky(jnp.where(ok, eye, jittered))
+    low_j = cholesky(a + (rel_jitter * scale)[..., None, None] * eye)
     ok_j = jnp.all(jnp.isfinite(low_j), axis=(-2, -1), keepdims=True)
-    floor = rel_jitter * scale[..., None]
-    low_d = jnp.sqrt(jnp.maximum(diag, floor))[..., None] * eye
-    return jnp.where(ok, low, jnp.where(ok_j, low_j, low_d))
+    low_d = jnp.sqrt(jnp.maximum(diag, rel_jitter * scale[..., None]))[..., None] * eye
+    return jnp.where(ok_j, low_j, low_d)

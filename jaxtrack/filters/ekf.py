@@ -83,7 +83,7 @@ def update(state: Gaussian, z: Array, h: Callable, R: Array, mask: Array | bool 
 def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Array,
            masks: Array | None = None, *, us: Array | None = None,
            residual: Callable | None = None,
-           time_varying: Collection[str] = ()) -> FilterResult:
+           time_varying: Collection[str] = (), return_predicted: bool = True) -> FilterResult:
     """EKF over a sequence under `lax.scan` (predict, then update, at every step).
 
     Args:
@@ -92,6 +92,7 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
       masks: optional [T] or [T, m] bools. us: optional [T, ...] controls passed to ``f``.
       residual: optional innovation function for angle components.
       time_varying: subset of {"Q", "R"} carrying a leading time axis.
+      return_predicted: also return the one-step predictions (see `kalman.filter`).
 
     Returns:
       `kalman.FilterResult`.
@@ -125,7 +126,7 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
         post, ll = _update(pred, z, h, p["R"], mask, residual)
         return pred, post, ll
 
-    return kalman.run_filter(init, zs, masks, step, per_step)
+    return kalman.run_filter(init, zs, masks, step, per_step, return_predicted)
 
 
 def _call_f(f, x, u):

@@ -216,11 +216,11 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
            points: SigmaPoints = DEFAULT_POINTS, x_mean_fn: Callable | None = None,
            residual_x: Callable | None = None, z_mean_fn: Callable | None = None,
            residual_z: Callable | None = None,
-           time_varying: Collection[str] = ()) -> FilterResult:
+           time_varying: Collection[str] = (), return_predicted: bool = True) -> FilterResult:
     """UKF over a sequence under `lax.scan` (predict, then update, at every step).
 
     Arguments as in `predict` / `update` and `kalman.filter`; ``time_varying`` is a subset of
-    {"Q", "R"}; ``us`` [T, ...] optional controls.
+    {"Q", "R"}; ``us`` [T, ...] optional controls; ``return_predicted`` as in `kalman.filter`.
 
     Returns:
       `kalman.FilterResult`.
@@ -254,7 +254,7 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
         post, ll = _update(pred, z, h, p["R"], points, mask, z_mean_fn, residual_z, residual_x)
         return pred, post, ll
 
-    return kalman.run_filter(init, zs, masks, step, per_step)
+    return kalman.run_filter(init, zs, masks, step, per_step, return_predicted)
 
 
 def _check_points(points):

@@ -18,6 +18,7 @@ from scipy.stats import multivariate_normal
 
 from jaxtrack.filters import kalman
 from jaxtrack.filters.kalman import Gaussian
+from jaxtrack.models import measurement, motion
 
 T_RANDOM = 50  # the T of the shared CV problem, so compiled filters are reused
 _rts = jax.jit(kalman.rts_smoother, static_argnames=("time_varying",))
@@ -429,3 +430,16 @@ def _bad_input_cases():
 def test_bad_input_raises_clear_error(call, error, match):
     with pytest.raises(error, match=match):
         call()
+
+
+def test_return_predicted_false_drops_only_the_predictions():
+    F, Q = motion.constant_velocity(0.1, 0.5)
+    H, R = measurement.position(4), 0.1 * np.eye(2)
+    zs = np.random.default_rng(3).normal(size=(12, 2))
+    init = Gaussian(np.zeros(4), np.eye(4))
+    full = kalman.filter(init, zs, F, Q, H, R)
+    lean = kalman.filter(init, zs, F, Q, H, R, return_predicted=False)
+    assert lean.predicted_means is None and lean.predicted_covs is None
+    np.testing.assert_array_equal(lean.means, full.means)
+    np.testing.assert_array_equal(lean.covs, full.covs)
+    np.testing.assert_array_equal(lean.log_likelihood, full.log_likelihood)
