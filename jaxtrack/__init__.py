@@ -7,11 +7,13 @@ tuning. ``import jaxtrack`` never imports MuJoCo.
 
 import importlib
 
-from jaxtrack import angles, control, filters, models, montecarlo, perception, tracking, tuning
+from jaxtrack import (angles, control, filters, metrics, models, montecarlo, perception, tracking,
+                      tuning)
 
 __version__ = "0.1.0"
 
-__all__ = ["angles", "control", "filters", "models", "montecarlo", "perception", "plotting",
+__all__ = ["angles", "control", "filters", "metrics", "models", "montecarlo", "perception",
+           "plotting",
            "tracking", "tuning",
            "__version__"]
 
