@@ -1,0 +1,347 @@
+r"""The closed loop of seed 000, one episode as a pure function of (key, params).
+
+Every control period (``frame_dt``, the seed's ~4 Hz):
+
+1. the true gait state is posed (`gait.qpos`), MJX kinematics gives the geom poses, and the
+   zenithal camera renders the robot's window (`sensor.render_window`), adds Kinect noise,
+   back-projects and removes the floor; the ``max_points`` highest points are kept (a fixed
+   capacity: the robot shows about 40 points at 80 x 60);
+2. the tracker updates its estimate (x, y, theta):
+
+   - ``"pf"``: the seed's tracker, SIR over (x, y) with the point-count likelihood rotated by
+     the last heading, then the PCA heading with the continuity window
+     (`jaxtrack.perception.depth`);
+   - ``"pf3"``: SIR over (x, y, theta) with the same likelihood (heading random walk);
+   - ``"ukf"``: a constant-velocity UKF on the centroid of the points near the prediction, with
+     the PCA heading;
+
+3. the reach controller (`jaxtrack.control.pose`, Algorithm 1 with the 5 cm / 10 deg latched
+   stop) turns the estimate into a body-frame velocity and turn rate;
+4. the walking pattern generator (`gait`) executes it for ``frame_dt`` in sub-steps.
+
+`make_episode` returns ``episode(key, params) -> metrics`` for `jaxtrack.montecarlo.evaluate`;
+``params`` is an `EpisodeParams` (task and tunable floats, traced: new tasks do not recompile).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxtrack.angles import wrap
+from jaxtrack.control import pose as control
+from jaxtrack.filters import kalman, particle, ukf
+from jaxtrack.perception import depth
+from sims.humanoid import gait, scene as scene_mod, sensor
+
+Array = jax.Array
+
+__all__ = ["TRACKERS", "EpisodeConfig", "EpisodeParams", "make_params", "make_episode",
+           "seed_task_params"]
+
+TRACKERS = ("pf", "pf3", "ukf")
+
+
+class EpisodeParams(NamedTuple):
+    """Per-episode inputs (float leaves; traced, so they can be batched or differentiated).
+
+    Attributes:
+      start: [3] initial pose (x, y, theta).
+      target: [3] target pose.
+      gains: `control.PoseGains` (log lambda_x, log lambda_theta).
+      log_position_noise: log std (m) of the tracker's random-walk propagation per frame.
+    """
+
+    start: Array
+    target: Array
+    gains: control.PoseGains
+    log_position_noise: Array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EpisodeConfig:
+    """Static configuration of an episode (closed over; changing it recompiles).
+
+    Attributes:
+      scene: `scene.Scene` (resolution, camera).
+      tracker: "pf", "pf3" or "ukf".
+      num_particles: particles of the PF trackers.
+      num_frames: control periods per episode (200: the acceptance budget).
+      frame_dt: control / tracking period (s); 0.25 is the seed's ~4 Hz.
+      substeps: gait sub-steps per frame.
+      gait_params: `gait.GaitParams`.
+      noise: `sensor.DepthNoise`.
+      model: `depth.RobotModel` of the likelihood.
+      limits: `control.PoseLimits`.
+      max_points: point-cloud capacity after floor removal.
+      heading_noise: heading random-walk std per frame of "pf3" (rad).
+      pca_radius, heading_window, heading_gain: PCA heading (`depth.pca_heading`).
+      init_spread: std (m) of the initial particle cloud around the given start.
+      smooth: differentiable variant (sigmoid-edged count with ``softness``, stop-gradient
+        resampling, smooth stop gate) for gradient tuning.
+      softness: edge width (m) of the smooth count.
+      dtype: float dtype of the simulation.
+    """
+
+    scene: scene_mod.Scene
+    tracker: str = "pf"
+    num_particles: int = 128
+    num_frames: int = 200
+    frame_dt: float = 0.25
+    substeps: int = 5
+    gait_params: gait.GaitParams = gait.GaitParams()
+    noise: sensor.DepthNoise = sensor.DepthNoise()
+    model: depth.RobotModel = depth.RobotModel()
+    limits: control.PoseLimits = control.PoseLimits()
+    max_points: int = 96
+    heading_noise: float = math.radians(4.0)
+    pca_radius: float = 0.25
+    heading_window: float = math.radians(20.0)
+    heading_gain: float = 0.5
+    init_spread: float = 0.02
+    smooth: bool = False
+    softness: float = 0.01
+    dtype: type = jnp.float32
+
+
+def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
+                position_noise=0.02, dtype=jnp.float32) -> EpisodeParams:
+    """`EpisodeParams` from plain values, checked at the boundary.
+
+    Args:
+      target: [3] target pose; start: [3] initial pose (both finite; headings in rad).
+      lambda_x, lambda_theta: controller gains (1/s, > 0).
+      position_noise: tracker propagation std (m, > 0).
+
+    Example:
+      >>> params = make_params([1.0, 0.0, -math.pi / 2])
+    """
+    target = np.asarray(target, float)
+    start = np.asarray(start, float)
+    for name, value in (("target", target), ("start", start)):
+        if value.shape != (3,):
+            raise ValueError(f"{name} must be a pose [3] (x, y, theta); got shape "
+                             f"{list(value.shape)}")
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"{name} must be finite; got {value.tolist()}")
+    for name, value in (("lambda_x", lambda_x), ("lambda_theta", lambda_theta),
+                        ("position_noise", position_noise)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite positive number; got {value}")
+    return EpisodeParams(jnp.asarray(start, dtype), jnp.asarray(target, dtype),
+                         control.PoseGains(jnp.asarray(math.log(lambda_x), dtype),
+                                           jnp.asarray(math.log(lambda_theta), dtype)),
+                         jnp.asarray(math.log(position_noise), dtype))
+
+
+def seed_task_params(dtype=jnp.float32, **kwargs) -> list[EpisodeParams]:
+    """The seed's 15 tasks (`control.seed_tasks`) as `EpisodeParams`, from (0, 0, 0)."""
+    return [make_params(t, dtype=dtype, **kwargs) for t in np.asarray(control.seed_tasks())]
+
+
+def make_episode(config: EpisodeConfig):
+    """Build ``episode(key, params) -> metrics`` for one static configuration.
+
+    Metrics (dict of arrays):
+      ``pos_err_median``, ``pos_err_max``: tracker position error (m) over the frames up to the
+      stop; ``heading_err_mean``, ``heading_err_std``: tracker heading error (deg) vs the torso
+      yaw; ``success``: 1.0 if the controller stopped and the *true* final pose is within 5 cm
+      and 10 deg of the target; ``frames_to_stop``: frames until the stop (``num_frames`` if
+      never); ``final_pos_err`` (m), ``final_heading_err`` (deg): true final pose error;
+      ``pos_err`` [T], ``heading_err`` [T], ``active`` [T]: per-frame errors and mask;
+      ``truth`` [T, 3], ``estimate`` [T, 3]: trajectories.
+
+    Example:
+      >>> episode = make_episode(EpisodeConfig(scene.build()))
+      >>> metrics = jax.jit(episode)(key, make_params([1.0, 0.0, 0.0]))
+    """
+    if config.tracker not in TRACKERS:
+        raise ValueError(f"unknown tracker {config.tracker!r}; choose one of {TRACKERS}")
+    if config.num_frames < 1 or config.substeps < 1 or config.num_particles < 1:
+        raise ValueError("num_frames, substeps and num_particles must be positive")
+    sc = config.scene
+    dtype = config.dtype
+    bg = sensor.background(sc, dtype)
+    k_win = sensor.window_size(sc.camera)
+    n_pts = min(config.max_points, k_win * k_win)
+    sub_dt = config.frame_dt / config.substeps
+    gp = config.gait_params
+
+    def observe(key, gstate):
+        q = gait.qpos(sc, gstate, gp)
+        xpos, xmat = scene_mod.pose_geoms(sc, q)
+        win = sensor.render_window(sc, xpos, xmat, gstate.com, k_win, bg, dtype)
+        pts, mask = sensor.point_cloud(key, sc, win, config.noise)
+        score = jnp.where(mask, pts[:, 2], -jnp.inf)
+        _, idx = jax.lax.top_k(score, n_pts)
+        return pts[idx], mask[idx]
+
+    tracker_init, tracker_step = _tracker(config)
+
+    def episode(key, params: EpisodeParams):
+        start = jnp.asarray(params.start, dtype)
+        target = jnp.asarray(params.target, dtype)
+        k_init, k_run = jax.random.split(key)
+        gstate = gait.init(start, gp, dtype)
+        tstate = tracker_init(k_init, start)
+        cstate = control.smooth_init(dtype) if config.smooth else control.init()
+
+        def frame(carry, k):
+            gstate, tstate, cstate = carry
+            k_obs, k_trk, k_gait = jax.random.split(k, 3)
+            truth = gait.torso_pose(gstate, gp)
+            pts, mask = observe(k_obs, gstate)
+            tstate, est = tracker_step(k_trk, tstate, pts, mask, params)
+            stopped_before = (cstate.moving < 0.5) if config.smooth else cstate.stopped
+            if config.smooth:
+                cstate, cmd = control.smooth_step(cstate, est, target, params.gains,
+                                                  config.limits)
+                stop = cmd.stopped > 0.5
+            else:
+                cstate, cmd = control.step(cstate, est, target, params.gains, config.limits)
+                stop = cmd.stopped
+
+            def sub(g, kk):
+                return gait.step(kk, g, cmd.body_velocity, cmd.turn_rate, stop, gp,
+                                 sub_dt), None
+
+            gstate, _ = jax.lax.scan(sub, gstate, jax.random.split(k_gait, config.substeps))
+            return (gstate, tstate, cstate), (truth, est, ~stopped_before, cmd.stopped)
+
+        (gstate, tstate, cstate), (truth, est, active, stopped) = jax.lax.scan(
+            frame, (gstate, tstate, cstate), jax.random.split(k_run, config.num_frames))
+        # Let a stopped robot finish its step and settle before the final pose is read.
+        final = gait.torso_pose(_settle(gstate, gp, sub_dt), gp)
+        pos_err = jnp.linalg.norm(est[:, :2] - truth[:, :2], axis=-1)
+        head_err = jnp.rad2deg(jnp.abs(wrap(est[:, 2] - truth[:, 2])))
+        stopped_any = jnp.any(stopped > 0.5) if config.smooth else jnp.any(stopped)
+        frames_to_stop = jnp.sum(active).astype(dtype)
+        final_pos_err = jnp.linalg.norm(final[:2] - target[:2])
+        final_head_err = jnp.rad2deg(jnp.abs(wrap(final[2] - target[2])))
+        success = (stopped_any & (final_pos_err <= config.limits.stop_distance)
+                   & (final_head_err <= math.degrees(config.limits.stop_angle)))
+        nan = jnp.asarray(jnp.nan, dtype)
+        pos_active = jnp.where(active, pos_err, nan)
+        head_active = jnp.where(active, head_err, nan)
+        return {
+            "pos_err_median": jnp.nanmedian(pos_active),
+            "pos_err_max": jnp.nanmax(pos_active),
+            "heading_err_mean": jnp.nanmean(head_active),
+            "heading_err_std": jnp.nanstd(head_active),
+            "success": success.astype(dtype),
+            "frames_to_stop": frames_to_stop,
+            "final_pos_err": final_pos_err,
+            "final_heading_err": final_head_err,
+            "pos_err": pos_err, "heading_err": head_err, "active": active,
+            "truth": truth, "estimate": est,
+        }
+
+    return episode
+
+
+def _settle(gstate, gp, dt, steps: int = 20):
+    def body(g, _):
+        return gait.step(jax.random.PRNGKey(0), g, jnp.zeros(2, g.com.dtype), 0.0, True, gp,
+                         dt), None
+
+    return jax.lax.scan(body, gstate, None, length=steps)[0]
+
+
+class _PFState(NamedTuple):
+    particles: particle.ParticleSet
+    heading: Array
+
+
+class _UKFState(NamedTuple):
+    belief: kalman.Gaussian
+    heading: Array
+
+
+def _tracker(config: EpisodeConfig):
+    """(init(key, start) -> state, step(key, state, points, mask, params) -> (state, est))."""
+    n = config.num_particles
+    dtype = config.dtype
+    model = config.model
+    resampler = (particle.stop_gradient_resampling() if config.smooth else particle.systematic)
+    softness = config.softness if config.smooth else None
+
+    def heading_from_pca(points, mask, centre, prev):
+        return depth.pca_heading(points, mask, centre, config.pca_radius, prev,
+                                 config.heading_window, config.heading_gain).heading
+
+    if config.tracker == "pf":
+        def init(key, start):
+            eps = jax.random.normal(key, (n, 2), dtype)
+            return _PFState(particle.ParticleSet(start[:2] + config.init_spread * eps,
+                                                 jnp.full((n,), -math.log(n), dtype)), start[2])
+
+        def step(key, state, points, mask, params):
+            sigma = jnp.exp(params.log_position_noise).astype(dtype)
+            frame = depth.DepthFrame(points, mask, state.heading)
+            ps, _ = particle.step(
+                key, state.particles, frame,
+                lambda k, x: x + sigma * jax.random.normal(k, x.shape, x.dtype),
+                lambda z, x: depth.log_likelihood(z, x, model, softness=softness),
+                resampler, vectorized=True)
+            position = particle.weighted_mean(ps)
+            heading = heading_from_pca(points, mask, position, state.heading)
+            return _PFState(ps, heading), jnp.concatenate([position, heading[None]])
+
+        return init, step
+
+    if config.tracker == "pf3":
+        def init(key, start):
+            eps = jax.random.normal(key, (n, 3), dtype)
+            spread = jnp.array([config.init_spread, config.init_spread, math.radians(3.0)],
+                               dtype)
+            return _PFState(particle.ParticleSet(start + spread * eps,
+                                                 jnp.full((n,), -math.log(n), dtype)), start[2])
+
+        def step(key, state, points, mask, params):
+            sigma = jnp.exp(params.log_position_noise).astype(dtype)
+            scale = jnp.stack([sigma, sigma, jnp.asarray(config.heading_noise, dtype)])
+            frame = depth.DepthFrame(points, mask, state.heading)
+
+            def transition(k, x):
+                x = x + scale * jax.random.normal(k, x.shape, x.dtype)
+                return x.at[:, 2].set(wrap(x[:, 2]))
+
+            ps, _ = particle.step(
+                key, state.particles, frame, transition,
+                lambda z, x: depth.log_likelihood(z, x, model, softness=softness),
+                resampler, vectorized=True)
+            est = particle.weighted_mean(ps, angle_dims=(2,))
+            return _PFState(ps, est[2]), est
+
+        return init, step
+
+    # "ukf": constant-velocity UKF on the centroid of the robot points near the prediction.
+    F = jnp.array([[1, 0, config.frame_dt, 0], [0, 1, 0, config.frame_dt], [0, 0, 1, 0],
+                   [0, 0, 0, 1]], dtype)
+
+    def init(key, start):
+        cov = jnp.diag(jnp.array([config.init_spread ** 2] * 2 + [0.05 ** 2] * 2, dtype))
+        mean = jnp.concatenate([start[:2], jnp.zeros(2, dtype)])
+        return _UKFState(kalman.Gaussian(mean, cov), start[2])
+
+    def step(key, state, points, mask, params):
+        sigma = jnp.exp(params.log_position_noise).astype(dtype)
+        q = jnp.diag(jnp.stack([sigma ** 2, sigma ** 2, (2 * sigma) ** 2, (2 * sigma) ** 2]))
+        pred = ukf.predict(state.belief, lambda x: F @ x, q)
+        d = points[:, :2] - pred.mean[:2]
+        near = mask & (jnp.sum(d * d, -1) <= config.pca_radius ** 2) & (
+            points[:, 2] >= model.shoulder_bottom)
+        w = near.astype(dtype)
+        count = jnp.sum(w)
+        centroid = (w @ points[:, :2]) / jnp.maximum(count, 1.0)
+        r = jnp.eye(2, dtype=dtype) * 0.015 ** 2
+        post, _ = ukf.update(pred, centroid, lambda x: x[:2], r, mask=count >= 3)
+        heading = heading_from_pca(points, mask, post.mean[:2], state.heading)
+        return (_UKFState(post, heading), jnp.concatenate([post.mean[:2], heading[None]]))
+
+    return init, step
