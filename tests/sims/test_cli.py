@@ -1,0 +1,30 @@
+"""Command line: argument handling and the section 5.5 table (no episode compile here)."""
+
+import numpy as np
+import pytest
+
+from sims import cli
+
+
+def _fake(rng, frames=10):
+    active = np.arange(frames)[None] < 7
+    return {"active": np.repeat(active, 4, 0), "pos_err": rng.uniform(0, 0.05, (4, frames)),
+            "heading_err": rng.uniform(0, 8, (4, frames)), "success": np.ones(4),
+            "frames_to_stop": np.full(4, 7.0), "final_pos_err": np.full(4, 0.03)}
+
+
+def test_table_has_one_row_per_seed_task_and_a_total():
+    rng = np.random.default_rng(0)
+    table = cli.task_table([_fake(rng) for _ in range(15)], 10)
+    lines = table.splitlines()
+    assert lines[2].startswith("P1 -90") and lines[16].startswith("P3 +90")
+    assert lines[18].startswith("all") and "100.0%" in lines[18]
+
+
+def test_unknown_tracker_and_bad_counts_are_rejected(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["run", "humanoid-reach", "--tracker", "kcf"])
+    assert "invalid choice: 'kcf'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["run", "humanoid-reach", "--episodes", "0"])
+    assert "must be positive" in capsys.readouterr().err
