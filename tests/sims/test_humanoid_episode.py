@@ -35,8 +35,8 @@ def test_particle_filter_converges_on_a_standing_robot(sc):
     m = run(jax.random.PRNGKey(1), params)
     assert np.all(np.isfinite(m["pos_err"]))
     assert m["success"] == 1.0
-    assert np.median(m["pos_err"][4:]) < 0.03
-    assert np.median(m["pos_err"][4:]) < np.median(m["pos_err"][:1]) + 1e-3
+    # From a 6 cm-std cloud, the estimate settles within about a centimetre.
+    assert np.median(m["pos_err"][4:]) < 0.015
 
 
 def test_bad_task_input_is_rejected_with_a_clear_message(sc):
