@@ -1,0 +1,299 @@
+r"""Gating: innovation statistics of every track-detection pair and the chi-square gate.
+
+For a predicted track :math:`k` (mean :math:`m_k`, covariance :math:`P_k`) and a detection
+:math:`z_j` from a sensor with noise :math:`R_j`,
+
+.. math::
+    y_{kj} = z_j - H m_k,\quad S_{kj} = H P_k H^T + R_j,\quad
+    d^2_{kj} = y_{kj}^T S_{kj}^{-1} y_{kj},\quad
+    \log g_{kj} = \log N(y_{kj}; 0, S_{kj}).
+
+Under the model, :math:`d^2_{kj}` of the true detection is :math:`\chi^2_m`-distributed, so the
+gate :math:`d^2_{kj} \le \chi^2_m{}^{-1}(P_G)` keeps the true detection with probability
+:math:`P_G` (seed 001 section IV; Bar-Shalom, Daum and Huang, IEEE CSM 2009, section III).
+
+Masked or non-finite detections and masked tracks give :math:`d^2 = +\infty` and
+:math:`\log g = -\infty`: they are never gated in, and their NaN never reaches a gradient.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jax.scipy import special
+
+from jaxtrack import _checks
+from jaxtrack.association import detections as _detections
+from jaxtrack.filters import _linalg
+
+Array = jax.Array
+
+__all__ = ["Innovations", "innovations", "mahalanobis", "chi2_ppf", "gate"]
+
+
+class Innovations(NamedTuple):
+    """Innovation statistics of every track-detection pair.
+
+    Attributes:
+      d2: [K, M] squared Mahalanobis distances (+inf for masked / non-finite pairs).
+      log_likelihood: [K, M] :math:`\\log N(z_j; H m_k, S_{kj})` (-inf where ``d2`` is inf).
+      valid: [K, M] bools, the pairs with a present track and a present, finite detection.
+    """
+
+    d2: Array
+    log_likelihood: Array
+    valid: Array
+
+
+def innovations(means: Array, covs: Array, zs: Array, H: Array, R: Array, *,
+                sensor: Array | None = None, track_mask: Array | None = None,
+                meas_mask: Array | None = None) -> Innovations:
+    r"""Squared Mahalanobis distances and Gaussian log-likelihoods of all pairs, [K, M].
+
+    .. math:: S_{kj} = H P_k H^T + R_{s(j)},\quad d^2_{kj} = y_{kj}^T S_{kj}^{-1} y_{kj}.
+
+    With several sensors, each detection uses its own sensor's noise ``R[sensor[j]]``.
+
+    Args:
+      means: [K, n] predicted track means.
+      covs: [K, n, n] predicted track covariances.
+      zs: [M, m] detections (rows under a False ``meas_mask`` may hold NaN).
+      H: [m, n] measurement matrix (shared by all sensors).
+      R: [m, m] measurement noise, or [S, m, m] one per sensor (then ``sensor`` is required).
+      sensor: [M] int sensor index of every detection.
+      track_mask: [K] bools, present tracks (default all).
+      meas_mask: [M] bools, present detections (default all; non-finite rows are dropped).
+
+    Returns:
+      `Innovations` (d2, log_likelihood, valid), each [K, M].
+
+    Example:
+      >>> inn = innovations(means, covs, zs, H, 0.2**2 * jnp.eye(2))
+      >>> gated = gate(inn.d2, 2, 0.99)
+    """
+    K, n, M, m = _check_tracks_and_detections(means, covs, zs, H, track_mask, meas_mask)
+    _detections.check_noise(R, sensor, M, m)
+    return _innovations(means, covs, zs, H, R, sensor, track_mask, meas_mask)
+
+
+def mahalanobis(means: Array, covs: Array, zs: Array, H: Array, R: Array, *,
+                sensor: Array | None = None, track_mask: Array | None = None,
+                meas_mask: Array | None = None) -> Array:
+    r"""Squared Mahalanobis distances :math:`d^2_{kj} = y_{kj}^T S_{kj}^{-1} y_{kj}`, [K, M].
+
+    The ``d2`` field of `innovations` (same arguments); +inf for masked or non-finite pairs.
+
+    Example:
+      >>> d2 = mahalanobis(means, covs, zs, H, R)          # [K, M]
+      >>> d2_multi = mahalanobis(means, covs, zs, H, R_per_sensor, sensor=sensor)
+    """
+    return innovations(means, covs, zs, H, R, sensor=sensor, track_mask=track_mask,
+                       meas_mask=meas_mask).d2
+
+
+def chi2_ppf(prob: Array | float, dim: int) -> Array:
+    r"""Quantile of the chi-square distribution with ``dim`` degrees of freedom.
+
+    Solves :math:`P(\mathrm{dim}/2, x/2) = p` (regularised lower incomplete gamma) by 8 Halley
+    steps from the Wilson-Hilferty starting point, with the residual taken from the upper tail
+    :math:`Q = 1 - P` when :math:`p > 1/2` so that gates like 0.9999 keep full precision. Q is
+    evaluated by its exact finite sum (integer or half-integer shape ``dim / 2``), P by its power
+    series. Exact closed forms are used for ``dim`` 1 (:math:`2\,\mathrm{erf}^{-1}(p)^2`) and 2
+    (:math:`-2 \log(1 - p)`). Matches `scipy.stats.chi2.ppf` to 1e-11 relative in float64 for
+    p in [1e-6, 1 - 1e-9] (tested for dim 1-5; checked to 1e-14 up to dim 100) and to 1e-5 in
+    float32; jit/vmap-able in ``prob``; ``dim`` is static.
+
+    Args:
+      prob: scalar or array of probabilities in (0, 1); 0 gives 0 and 1 gives +inf.
+      dim: degrees of freedom, a positive Python int (the measurement dimension).
+
+    Returns:
+      The quantile, same shape as ``prob``.
+
+    Example:
+      >>> chi2_ppf(0.99, 2)   # 9.2103...
+    """
+    dim = _check_dim(dim)
+    p = jnp.asarray(prob)
+    if not jnp.issubdtype(p.dtype, jnp.floating):
+        p = p.astype(jnp.result_type(float))
+    return _chi2_ppf(p, dim)
+
+
+def gate(d2: Array, dim: int, prob: Array | float, track_mask: Array | None = None,
+         meas_mask: Array | None = None) -> Array:
+    r"""Chi-square gate :math:`d^2_{kj} \le \chi^2_{\mathrm{dim}}{}^{-1}(P_G)`, [K, M] bools.
+
+    Args:
+      d2: [K, M] squared Mahalanobis distances (e.g. from `mahalanobis`); NaN is gated out.
+      dim: the measurement dimension m (degrees of freedom).
+      prob: gate probability :math:`P_G`, the probability that the gate holds the true
+        detection (e.g. 0.99).
+      track_mask: optional [K] bools; masked tracks gate nothing.
+      meas_mask: optional [M] bools; masked detections are gated out.
+
+    Returns:
+      [K, M] bools, True where the pair is inside the gate.
+
+    Example:
+      >>> gated = gate(mahalanobis(means, covs, zs, H, R), 2, 0.99, meas_mask=mask)
+    """
+    _checks.check_ndim("d2", d2, 2, "a [K, M] matrix of squared distances")
+    K, M = _checks.shape_of(d2)
+    if track_mask is not None:
+        _checks.check_shape("track_mask", track_mask, (K,))
+    if meas_mask is not None:
+        _checks.check_shape("meas_mask", meas_mask, (M,))
+    _check_probability("prob", prob)
+    d2 = jnp.asarray(d2)
+    inside = d2 <= chi2_ppf(jnp.asarray(prob, d2.dtype if jnp.issubdtype(d2.dtype, jnp.floating)
+                                        else jnp.result_type(float)), dim)
+    return inside & _pair_mask(track_mask, meas_mask, K, M)
+
+
+# ---------------------------------------------------------------------------------------------
+# Internals (shared with pda and jpda)
+
+
+@jax.jit
+def _innovations(means, covs, zs, H, R, sensor, track_mask, meas_mask) -> Innovations:
+    K, M = means.shape[0], zs.shape[0]
+    dtype = jnp.result_type(means, covs, zs, H, R)
+    means, covs, zs = (jnp.asarray(a, dtype) for a in (means, covs, zs))
+    H, R = jnp.asarray(H, dtype), jnp.asarray(R, dtype)
+    track_ok = jnp.ones(K, bool) if track_mask is None else jnp.asarray(track_mask, bool)
+    track_ok = track_ok & jnp.all(jnp.isfinite(means), -1) \
+        & jnp.all(jnp.isfinite(covs), (-2, -1))
+    meas_ok = jnp.all(jnp.isfinite(zs), -1)
+    if meas_mask is not None:
+        meas_ok = meas_ok & jnp.asarray(meas_mask, bool)
+    n = means.shape[-1]
+    # Sanitise before any arithmetic so that masked NaN never reaches values or gradients.
+    means = jnp.where(track_ok[:, None], means, 0.0)
+    covs = jnp.where(track_ok[:, None, None], covs, jnp.eye(n, dtype=dtype))
+    zs = jnp.where(meas_ok[:, None], zs, 0.0)
+    HPHt = H @ covs @ H.T                                            # [K, m, m]
+    y = zs[None, :, :] - (means @ H.T)[:, None, :]                   # [K, M, m]
+    if jnp.ndim(R) == 2:
+        low = _linalg.cholesky(_linalg.symmetrize(HPHt + R))[:, None]  # [K, 1, m, m]
+    else:
+        Rj = _detections.noise_per_detection(R, sensor, M)            # [M, m, m]
+        low = _linalg.cholesky(_linalg.symmetrize(HPHt[:, None] + Rj[None]))  # [K, M, m, m]
+    ll, w = _linalg.gaussian_log_density(low, y)
+    d2 = jnp.sum(w * w, -1)
+    valid = track_ok[:, None] & meas_ok[None, :] & jnp.isfinite(d2)
+    return Innovations(jnp.where(valid, d2, jnp.inf), jnp.where(valid, ll, -jnp.inf), valid)
+
+
+def _pair_mask(track_mask, meas_mask, K, M):
+    rows = jnp.ones(K, bool) if track_mask is None else jnp.asarray(track_mask, bool)
+    cols = jnp.ones(M, bool) if meas_mask is None else jnp.asarray(meas_mask, bool)
+    return rows[:, None] & cols[None, :]
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _chi2_ppf(p, dim):
+    if dim == 1:
+        # P(1/2, x/2) = erf(sqrt(x/2)); the upper-tail form keeps precision when p is near 1
+        x = jnp.where(p > 0.5, special.ndtri(0.5 * (1.0 - p)) ** 2,
+                      2.0 * lax.erf_inv(jnp.minimum(p, 0.5)) ** 2)
+    elif dim == 2:
+        x = -2.0 * jnp.log1p(-p)
+    else:
+        x = _chi2_ppf_halley(p, dim)
+    x = jnp.where(p <= 0, 0.0, jnp.where(p >= 1, jnp.inf, x))
+    return jnp.where(jnp.isnan(p) | (p < 0) | (p > 1), jnp.nan, x)
+
+
+def _chi2_ppf_halley(p, dim: int, iterations: int = 8):
+    a = 0.5 * dim
+    tiny = jnp.finfo(p.dtype).tiny
+    q = jnp.clip(p, tiny, 1.0 - jnp.finfo(p.dtype).epsneg)
+    # Wilson-Hilferty: (x / dim)^(1/3) is close to normal with mean 1 - 2/(9 dim).
+    c = 2.0 / (9.0 * dim)
+    x = dim * jnp.maximum(1.0 - c + special.ndtri(q) * jnp.sqrt(c), 0.1) ** 3
+    # Small-x asymptote P(a, x/2) ~ (x/2)^a / Gamma(a + 1) (a lower bound on the quantile, within
+    # a factor e^{x/2} of P): the better start where that factor is below 2.
+    x_small = 2.0 * jnp.exp((jnp.log(q) + math.lgamma(a + 1.0)) / a)
+    x = jnp.where(x_small < 2.0 * math.log(2.0), x_small, x)
+    upper = q > 0.5
+    log_norm = math.lgamma(a)
+
+    def halley(_, x):
+        half = 0.5 * x
+        residual = jnp.where(upper, (1.0 - q) - _gamma_upper(dim, half),
+                             _gamma_lower_series(dim, half) - q)
+        log_pdf = (a - 1.0) * jnp.log(half) - half - log_norm - jnp.log(2.0)
+        step = residual / jnp.exp(log_pdf)                # Newton step f / f'
+        curvature = (a - 1.0) / x - 0.5                   # f'' / f'
+        step = step / jnp.maximum(1.0 - 0.5 * step * curvature, 0.5)   # Halley correction
+        return jnp.maximum(x - step, 0.1 * x)
+
+    return lax.fori_loop(0, iterations, halley, x)
+
+
+def _gamma_upper(dim: int, x):
+    """Regularised upper incomplete gamma Q(dim / 2, x), exact finite sums (no cancellation).
+
+    Q(k, x) = e^{-x} sum_{i<k} x^i / i! for integer k, and
+    Q(k + 1/2, x) = erfc(sqrt x) + e^{-x} sum_{i<k} x^{i+1/2} / Gamma(i + 3/2).
+    (jax.scipy.special.gammaincc would do, but costs ~1.5 s of compilation per call site.)
+    """
+    log_x = jnp.log(jnp.maximum(x, jnp.finfo(x.dtype).tiny))
+    if dim % 2 == 0:
+        total, shift = jnp.zeros_like(x), 0.0
+    else:
+        total, shift = lax.erfc(jnp.sqrt(x)), 0.5
+    for i in range(dim // 2):
+        total = total + jnp.exp(-x + (i + shift) * log_x - math.lgamma(i + shift + 1.0))
+    return total
+
+
+def _gamma_lower_series(dim: int, x):
+    """Regularised lower incomplete gamma P(a, x), a = dim / 2, by its power series
+
+    P(a, x) = x^a e^{-x} / Gamma(a + 1) * sum_n x^n / ((a + 1) ... (a + n)), used for p <= 1/2
+    where x is below the median (about a); the static number of terms bounds the truncation
+    error below 1e-17 there.
+    """
+    a = 0.5 * dim
+    n_terms = 30 + math.ceil(9.0 * math.sqrt(a))
+    ratios = x[..., None] / (a + jnp.arange(1, n_terms + 1, dtype=x.dtype))
+    series = 1.0 + jnp.sum(jnp.cumprod(ratios, axis=-1), axis=-1)
+    log_x = jnp.log(jnp.maximum(x, jnp.finfo(x.dtype).tiny))
+    return jnp.exp(a * log_x - x - math.lgamma(a + 1.0)) * series
+
+
+def _check_dim(dim) -> int:
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        raise ValueError(f"dim must be a positive Python int (degrees of freedom); got {dim!r}")
+    return int(dim)
+
+
+def _check_probability(name, p, *, closed: bool = True) -> None:
+    if not _checks.is_concrete(p):
+        return
+    a = np.asarray(p, dtype=np.float64)
+    lo_ok = np.all(a >= 0) if closed else np.all(a > 0)
+    if not (np.all(np.isfinite(a)) and lo_ok and np.all(a <= 1)):
+        raise ValueError(f"{name} must be a probability in [0, 1]; got {p!r}")
+
+
+def _check_tracks_and_detections(means, covs, zs, H, track_mask, meas_mask):
+    _checks.check_ndim("means", means, 2, "[K, n] predicted track means")
+    K, n = _checks.shape_of(means)
+    _checks.check_shape("covs", covs, (K, n, n), "predicted track covariances")
+    _checks.check_ndim("zs", zs, 2, "[M, m] detections")
+    M, m = _checks.shape_of(zs)
+    _checks.check_shape("H", H, (m, n), "measurement matrix")
+    if track_mask is not None:
+        _checks.check_shape("track_mask", track_mask, (K,), "one flag per track")
+    if meas_mask is not None:
+        _checks.check_shape("meas_mask", meas_mask, (M,), "one flag per detection slot")
+    return K, n, M, m
