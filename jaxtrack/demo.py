@@ -6,7 +6,7 @@ range-bearing sensor at the origin. The KF tracks the positions, the EKF and UKF
 bearing. Reported per filter: position RMSE against the truth (and of the raw detections),
 mean NEES and NIS (consistency: ideally the state and measurement dimensions) and speed.
 
-Run it with ``jaxtrack demo`` (or ``python -m jaxtrack demo``).
+Run it with ``jaxtrack demo``.
 """
 
 from __future__ import annotations

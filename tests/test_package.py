@@ -9,7 +9,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_import_jaxtrack_does_not_import_mujoco():
-    code = ("import sys, jaxtrack, jaxtrack.filters, jaxtrack.models, jaxtrack.demo; "
+    code = ("import sys, jaxtrack, jaxtrack.filters, jaxtrack.models, jaxtrack.demo, "
+            "jaxtrack.plotting, sims.cli; "
             "bad = [m for m in sys.modules if m.split('.')[0] in ('mujoco', 'mujoco_mjx')]; "
             "print(bad); sys.exit(1 if bad else 0)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -34,9 +35,15 @@ def test_readme_quickstart_has_exactly_two_commands_and_ci_runs_the_second():
     assert ".venv/bin/pip install -e \".[test]\"" in ci
 
 
+def jaxtrack_command():
+    """The installed console script, or the module it points to."""
+    script = Path(sys.executable).parent / "jaxtrack"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "sims.cli"]
+
+
 def test_demo_command_prints_a_results_table_with_consistent_filters():
-    out = subprocess.run([sys.executable, "-m", "jaxtrack", "demo", "--episodes", "8",
-                          "--steps", "30"], capture_output=True, text=True, cwd=ROOT)
+    out = subprocess.run(jaxtrack_command() + ["demo", "--episodes", "8", "--steps", "30"],
+                         capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     rows = {line.split("  ")[0].strip(): line for line in out.stdout.splitlines()}
     kf = [r for k, r in rows.items() if k.startswith("KF")]
@@ -50,6 +57,6 @@ def test_demo_command_prints_a_results_table_with_consistent_filters():
 
 
 def test_cli_rejects_bad_arguments():
-    out = subprocess.run([sys.executable, "-m", "jaxtrack", "demo", "--episodes", "0"],
+    out = subprocess.run(jaxtrack_command() + ["demo", "--episodes", "0"],
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode != 0 and "positive" in out.stderr

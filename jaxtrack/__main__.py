@@ -1,5 +1,0 @@
-import sys
-
-from jaxtrack.cli import main
-
-sys.exit(main())
