@@ -288,6 +288,9 @@ def _jpda_marginals(likelihoods, p_detect, clutter_density, track_mask, meas_mas
     K, M = a.shape
     present = jnp.ones(K, bool) if track_mask is None else jnp.asarray(track_mask, bool)
     none = jnp.full((K,), -1, jnp.int32)
+    if K == 0:
+        return jnp.zeros((0, M + 1), a.dtype), JPDAInfo(
+            present, none, none, jnp.zeros((), jnp.int32), jnp.ones((), bool))
     if method == "lbp":
         log_beta, iters, converged = _lbp(a, b, lbp_tol, lbp_max_iter)
         return _normalise_rows(log_beta), JPDAInfo(present, none, jnp.zeros(K, jnp.int32),

@@ -32,6 +32,8 @@ def _batched(method, **kw):
 
 _exact = _batched("exact")
 _lbp = _batched("lbp")
+_clustered = jax.jit(jax.vmap(lambda L, pd, lam: association.jpda_marginals(
+    L, pd, lam, max_cluster_tracks=4, return_info=True)))      # 12 x 12 problems
 _nn_greedy = jax.jit(jax.vmap(association.nn_jpda))
 _nn_optimal = jax.jit(jax.vmap(lambda b: association.nn_jpda(b, "optimal")))
 
@@ -95,6 +97,19 @@ def test_exact_equals_brute_force_enumeration_up_to_6x6_and_rows_sum_to_one():
         assert np.all(beta[i, ~tm[i], -1] == 1)                   # masked tracks: missed
 
 
+def test_empty_frames_give_missed_detection_everywhere():
+    L, pd, lam, tm, mm, K, M = random_problems(13, 4)
+    mm[:] = False                                    # a scan without detections
+    tm[1] = False                                    # and one with no tracks either
+    for fn in (_exact, _lbp):
+        beta = np.asarray(fn(L, pd, lam, tm, mm))
+        np.testing.assert_array_equal(beta[..., -1], 1.0)
+        np.testing.assert_array_equal(beta[..., :-1], 0.0)
+    assert association.jpda_marginals(np.zeros((0, 3)), 0.9, 1.0).shape == (0, 4)
+    np.testing.assert_array_equal(np.asarray(association.jpda_marginals(np.zeros((2, 0)), 0.9,
+                                                                        1.0)), 1.0)
+
+
 def test_clustered_exact_equals_per_cluster_brute_force_beyond_the_cap():
     """12 tracks, clusters of <= 4 tracks, cap 4: clustering, gather and scatter are exact."""
     rng = np.random.default_rng(1)
@@ -117,9 +132,7 @@ def test_clustered_exact_equals_per_cluster_brute_force_beyond_the_cap():
         pt, pm = rng.permutation(K), rng.permutation(M)       # clusters are not contiguous
         problems.append((L[pt][:, pm], pd[pt], lam[pm]))
         refs.append(np.concatenate([ref[pt][:, pm], ref[pt][:, M:]], 1))
-    run = jax.jit(jax.vmap(lambda L, pd, lam: association.jpda_marginals(
-        L, pd, lam, max_cluster_tracks=4, return_info=True)))
-    beta, info = run(*(np.stack(x) for x in zip(*problems)))
+    beta, info = _clustered(*(np.stack(x) for x in zip(*problems)))
     np.testing.assert_allclose(np.asarray(beta), np.stack(refs), atol=1e-12)
     assert not np.asarray(info.approximate).any()
     assert np.asarray(info.cluster_size).max() <= 4
@@ -127,23 +140,27 @@ def test_clustered_exact_equals_per_cluster_brute_force_beyond_the_cap():
 
 def test_clusters_above_the_cap_fall_back_to_lbp_and_are_flagged():
     rng = np.random.default_rng(2)
-    K = M = 10
+    K = M = 12
     L = np.zeros((K, M))
-    L[:6, :6] = rng.exponential(size=(6, 6))          # one dense cluster of 6 tracks
-    L[6:, 6:] = rng.exponential(size=(4, 4)) * (rng.uniform(size=(4, 4)) < 0.6)
-    beta, info = association.jpda_marginals(L, 0.9, 0.5, max_cluster_tracks=5,
-                                            return_info=True)
-    approx = np.asarray(info.approximate)
+    L[:6, :6] = rng.exponential(size=(6, 6))          # one dense cluster of 6 tracks > cap 4
+    L[6:9, 6:10] = rng.exponential(size=(3, 4)) * (rng.uniform(size=(3, 4)) < 0.6)
+    L[9:, 10:] = rng.exponential(size=(3, 2))
+    pd, lam = np.full(K, 0.9), np.full(M, 0.5)
+    beta, info = _clustered(L[None], pd[None], lam[None])
+    beta = np.asarray(beta)[0]
+    approx = np.asarray(info.approximate)[0]
     assert approx[:6].all() and not approx[6:].any()
-    np.testing.assert_array_equal(np.asarray(info.cluster_size)[:6], 6)
-    assert bool(info.lbp_converged) and int(info.lbp_iterations) > 0
-    lbp = np.asarray(association.jpda_marginals(L, 0.9, 0.5, method="lbp"))
-    np.testing.assert_allclose(np.asarray(beta)[:6], lbp[:6], atol=1e-12)
-    ref = brute_force_marginals(L[6:, 6:], 0.9, 0.5)
-    np.testing.assert_allclose(np.asarray(beta)[6:, 6:M], ref[:, :-1], atol=1e-12)
-    np.testing.assert_allclose(np.asarray(beta)[6:, -1], ref[:, -1], atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(info.cluster_size)[0, :6], 6)
+    assert bool(info.lbp_converged[0]) and int(info.lbp_iterations[0]) > 0
+    lbp = np.asarray(association.jpda_marginals(L, pd, lam, method="lbp"))
+    np.testing.assert_allclose(beta[:6], lbp[:6], atol=1e-12)
+    for tracks, dets in ((range(6, 9), range(6, 10)), (range(9, 12), range(10, 12))):
+        tracks, dets = list(tracks), list(dets)
+        ref = brute_force_marginals(L[np.ix_(tracks, dets)], 0.9, 0.5)
+        np.testing.assert_allclose(beta[np.ix_(tracks, dets)], ref[:, :-1], atol=1e-12)
+        np.testing.assert_allclose(beta[tracks, -1], ref[:, -1], atol=1e-12)
     exact6 = brute_force_marginals(L[:6, :6], 0.9, 0.5)
-    assert np.abs(np.asarray(beta)[:6, :6] - exact6[:, :-1]).max() < 0.1
+    assert np.abs(beta[:6, :6] - exact6[:, :-1]).max() < 0.1
 
 
 # ---------------------------------------------------------------------------------------------

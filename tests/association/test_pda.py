@@ -94,6 +94,9 @@ def test_masked_nan_detections_are_ignored():
     assert np.all(np.isfinite(np.asarray(grad)))
     empty = _pda(Gaussian(mean, cov), zs, np.zeros(6), H, R)
     np.testing.assert_allclose(np.asarray(empty.mean), mean)
+    no_detections = _pda(Gaussian(mean, cov), bad, beta, H, R, meas_mask=np.zeros(5, bool))
+    np.testing.assert_array_equal(np.asarray(no_detections.mean), mean)
+    np.testing.assert_allclose(np.asarray(no_detections.cov), cov, rtol=1e-15)
 
 
 def test_jpda_update_is_vmapped_pda_and_keeps_masked_tracks():
