@@ -19,7 +19,6 @@ Masked or non-finite detections and masked tracks give :math:`d^2 = +\infty` and
 from __future__ import annotations
 
 import functools
-import math
 from typing import NamedTuple
 
 import jax
@@ -31,6 +30,7 @@ from jax.scipy import special
 from jaxtrack import _checks
 from jaxtrack.association import detections as _detections
 from jaxtrack.filters import _linalg
+from jaxtrack.metrics import errors as _metric_errors
 
 Array = jax.Array
 
@@ -100,14 +100,12 @@ def mahalanobis(means: Array, covs: Array, zs: Array, H: Array, R: Array, *,
 def chi2_ppf(prob: Array | float, dim: int) -> Array:
     r"""Quantile of the chi-square distribution with ``dim`` degrees of freedom.
 
-    Solves :math:`P(\mathrm{dim}/2, x/2) = p` (regularised lower incomplete gamma) by 8 Halley
-    steps from the Wilson-Hilferty starting point, with the residual taken from the upper tail
-    :math:`Q = 1 - P` when :math:`p > 1/2` so that gates like 0.9999 keep full precision. Q is
-    evaluated by its exact finite sum (integer or half-integer shape ``dim / 2``), P by its power
-    series. Exact closed forms are used for ``dim`` 1 (:math:`2\,\mathrm{erf}^{-1}(p)^2`) and 2
-    (:math:`-2 \log(1 - p)`). Matches `scipy.stats.chi2.ppf` to 1e-11 relative in float64 for
-    p in [1e-6, 1 - 1e-9] (tested for dim 1-5; checked to 1e-14 up to dim 100) and to 1e-5 in
-    float32; jit/vmap-able in ``prob``; ``dim`` is static.
+    The gate's view of `jaxtrack.metrics.chi2_ppf` (which solves :math:`P(\mathrm{dim}/2, x/2)
+    = p` with the upper tail used above the median, so gates like 0.9999 keep full precision),
+    with closed forms for ``dim`` 1 (:math:`2\,\mathrm{erf}^{-1}(p)^2`) and 2
+    (:math:`-2 \log(1 - p)`), and the edge values a gate needs: ``p = 0`` gives 0 and ``p = 1``
+    gives +inf. Matches `scipy.stats.chi2.ppf` to 1e-11 relative in float64 for p in
+    [1e-6, 1 - 1e-9] and to 1e-5 in float32; jit/vmap-able in ``prob``; ``dim`` is static.
 
     Args:
       prob: scalar or array of probabilities in (0, 1); 0 gives 0 and 1 gives +inf.
@@ -206,68 +204,10 @@ def _chi2_ppf(p, dim):
     elif dim == 2:
         x = -2.0 * jnp.log1p(-p)
     else:
-        x = _chi2_ppf_halley(p, dim)
+        interior = jnp.clip(p, jnp.finfo(p.dtype).tiny, 1.0 - jnp.finfo(p.dtype).epsneg)
+        x = _metric_errors._chi2_ppf(interior, jnp.asarray(dim, p.dtype))
     x = jnp.where(p <= 0, 0.0, jnp.where(p >= 1, jnp.inf, x))
     return jnp.where(jnp.isnan(p) | (p < 0) | (p > 1), jnp.nan, x)
-
-
-def _chi2_ppf_halley(p, dim: int, iterations: int = 8):
-    a = 0.5 * dim
-    tiny = jnp.finfo(p.dtype).tiny
-    q = jnp.clip(p, tiny, 1.0 - jnp.finfo(p.dtype).epsneg)
-    # Wilson-Hilferty: (x / dim)^(1/3) is close to normal with mean 1 - 2/(9 dim).
-    c = 2.0 / (9.0 * dim)
-    x = dim * jnp.maximum(1.0 - c + special.ndtri(q) * jnp.sqrt(c), 0.1) ** 3
-    # Small-x asymptote P(a, x/2) ~ (x/2)^a / Gamma(a + 1) (a lower bound on the quantile, within
-    # a factor e^{x/2} of P): the better start where that factor is below 2.
-    x_small = 2.0 * jnp.exp((jnp.log(q) + math.lgamma(a + 1.0)) / a)
-    x = jnp.where(x_small < 2.0 * math.log(2.0), x_small, x)
-    upper = q > 0.5
-    log_norm = math.lgamma(a)
-
-    def halley(_, x):
-        half = 0.5 * x
-        residual = jnp.where(upper, (1.0 - q) - _gamma_upper(dim, half),
-                             _gamma_lower_series(dim, half) - q)
-        log_pdf = (a - 1.0) * jnp.log(half) - half - log_norm - jnp.log(2.0)
-        step = residual / jnp.exp(log_pdf)                # Newton step f / f'
-        curvature = (a - 1.0) / x - 0.5                   # f'' / f'
-        step = step / jnp.maximum(1.0 - 0.5 * step * curvature, 0.5)   # Halley correction
-        return jnp.maximum(x - step, 0.1 * x)
-
-    return lax.fori_loop(0, iterations, halley, x)
-
-
-def _gamma_upper(dim: int, x):
-    """Regularised upper incomplete gamma Q(dim / 2, x), exact finite sums (no cancellation).
-
-    Q(k, x) = e^{-x} sum_{i<k} x^i / i! for integer k, and
-    Q(k + 1/2, x) = erfc(sqrt x) + e^{-x} sum_{i<k} x^{i+1/2} / Gamma(i + 3/2).
-    (jax.scipy.special.gammaincc would do, but costs ~1.5 s of compilation per call site.)
-    """
-    log_x = jnp.log(jnp.maximum(x, jnp.finfo(x.dtype).tiny))
-    if dim % 2 == 0:
-        total, shift = jnp.zeros_like(x), 0.0
-    else:
-        total, shift = lax.erfc(jnp.sqrt(x)), 0.5
-    for i in range(dim // 2):
-        total = total + jnp.exp(-x + (i + shift) * log_x - math.lgamma(i + shift + 1.0))
-    return total
-
-
-def _gamma_lower_series(dim: int, x):
-    """Regularised lower incomplete gamma P(a, x), a = dim / 2, by its power series
-
-    P(a, x) = x^a e^{-x} / Gamma(a + 1) * sum_n x^n / ((a + 1) ... (a + n)), used for p <= 1/2
-    where x is below the median (about a); the static number of terms bounds the truncation
-    error below 1e-17 there.
-    """
-    a = 0.5 * dim
-    n_terms = 30 + math.ceil(9.0 * math.sqrt(a))
-    ratios = x[..., None] / (a + jnp.arange(1, n_terms + 1, dtype=x.dtype))
-    series = 1.0 + jnp.sum(jnp.cumprod(ratios, axis=-1), axis=-1)
-    log_x = jnp.log(jnp.maximum(x, jnp.finfo(x.dtype).tiny))
-    return jnp.exp(a * log_x - x - math.lgamma(a + 1.0)) * series
 
 
 def _check_dim(dim) -> int:
