@@ -13,6 +13,9 @@ floor-removed and stored at a fixed capacity with a mask:
 - `log_likelihood`: the particle weight. The seed sets the weight *proportional to the count*,
   :math:`w^i \propto p(y_t | x^i_t) = n(x^i_t)` (eqs. 1-2), so the log-weight is
   :math:`\log(n + \epsilon)`; a tempered :math:`n / T` is offered as an option.
+- `fold_half_turn`: the model is symmetric under a half turn, so a heading is only known modulo
+  :math:`\pi` from the counts; this picks the representative nearest a reference (the previous
+  estimate), for (x, y, theta) particle filters.
 - `pca_heading`: section 3.1.2, the minor axis of the ellipse fitted (by PCA) to the floor
   projection of the points in a larger window, kept within
   :math:`[\theta_{t-1} - \theta_h, \theta_{t-1} + \theta_h]` and smoothed.
@@ -37,8 +40,8 @@ from jaxtrack.filters import particle
 Array = jax.Array
 
 __all__ = ["RobotModel", "DepthFrame", "PCAHeading", "TrackerParams", "TrackerState",
-           "point_count", "smooth_point_count", "log_likelihood", "pca_heading",
-           "init_tracker", "track_step"]
+           "point_count", "smooth_point_count", "log_likelihood", "fold_half_turn",
+           "pca_heading", "init_tracker", "track_step"]
 
 
 class RobotModel(NamedTuple):
@@ -218,6 +221,39 @@ def log_likelihood(z: DepthFrame, x: Array, model: RobotModel = RobotModel(), *,
 
 # ---------------------------------------------------------------------------------------------
 # Orientation
+
+
+def fold_half_turn(theta: Array, reference) -> Array:
+    r"""The heading equal to ``theta`` modulo :math:`\pi` nearest ``reference``.
+
+    The cylinder + cuboid model is symmetric under a half turn, so `point_count` and
+    `log_likelihood` cannot tell :math:`\theta` from :math:`\theta + \pi`: the heading
+    marginal of an (x, y, theta) particle filter is bimodal and its circular mean meaningless
+    once particles have drifted to both modes. Folding every particle to the half-circle
+    centred on the previous estimate,
+
+    .. math:: \theta' = \operatorname{wrap}\big(\theta_{ref} +
+        \operatorname{wrap}_{\pi}(\theta - \theta_{ref})\big),
+        \qquad \operatorname{wrap}_{\pi}(a) \in [-\pi/2, \pi/2),
+
+    leaves every weight unchanged (the likelihood is :math:`\pi`-periodic) and resolves the
+    ambiguity by continuity, as the seed's PCA heading does with its window (section 3.1.2).
+
+    Args:
+      theta: [...] headings (rad).
+      reference: scalar or [...] reference heading(s), broadcast against ``theta``.
+
+    Returns:
+      [...] folded headings, wrapped to [-pi, pi).
+
+    Example:
+      >>> fold_half_turn(jnp.array([3.0, -0.1]), 0.0)  # [3 - pi, -0.1]
+    """
+    theta = jnp.asarray(theta)
+    reference = jnp.asarray(reference, theta.dtype)
+    half = jnp.asarray(0.5 * math.pi, theta.dtype)
+    delta = jnp.mod(theta - reference + half, 2.0 * half) - half
+    return wrap(reference + delta)
 
 
 def pca_heading(points: Array, mask: Array, centre: Array, radius, prev_heading, window,

@@ -12,6 +12,9 @@ Every control period (``frame_dt``, the seed's ~4 Hz):
      the last heading, then the PCA heading with the continuity window
      (`jaxtrack.perception.depth`);
    - ``"pf3"``: SIR over (x, y, theta) with the same likelihood (heading random walk);
+     the likelihood is symmetric under a half turn, so the heading particles are folded to the
+     half-circle of the previous estimate (`depth.fold_half_turn`) before their circular mean,
+     and the heading particles are propagated with the turn rate commanded over the last frame;
    - ``"ukf"``: a constant-velocity UKF on the centroid of the points near the prediction, with
      the PCA heading;
 
@@ -192,13 +195,14 @@ def make_episode(config: EpisodeConfig):
         gstate = gait.init(start, gp, dtype)
         tstate = tracker_init(k_init, start)
         cstate = control.smooth_init(dtype) if config.smooth else control.init()
+        turn = jnp.zeros((), dtype)
 
         def frame(carry, k):
-            gstate, tstate, cstate = carry
+            gstate, tstate, cstate, turn = carry
             k_obs, k_trk, k_gait = jax.random.split(k, 3)
             truth = gait.torso_pose(gstate, gp)
             pts, mask = observe(k_obs, gstate)
-            tstate, est = tracker_step(k_trk, tstate, pts, mask, params)
+            tstate, est = tracker_step(k_trk, tstate, pts, mask, params, turn)
             stopped_before = (cstate.moving < 0.5) if config.smooth else cstate.stopped
             if config.smooth:
                 cstate, cmd = control.smooth_step(cstate, est, target, params.gains,
@@ -213,10 +217,11 @@ def make_episode(config: EpisodeConfig):
                                  sub_dt), None
 
             gstate, _ = jax.lax.scan(sub, gstate, jax.random.split(k_gait, config.substeps))
-            return (gstate, tstate, cstate), (truth, est, ~stopped_before, cmd.stopped)
+            return ((gstate, tstate, cstate, cmd.turn_rate.astype(dtype)),
+                    (truth, est, ~stopped_before, cmd.stopped))
 
-        (gstate, tstate, cstate), (truth, est, active, stopped) = jax.lax.scan(
-            frame, (gstate, tstate, cstate), jax.random.split(k_run, config.num_frames))
+        (gstate, tstate, cstate, _), (truth, est, active, stopped) = jax.lax.scan(
+            frame, (gstate, tstate, cstate, turn), jax.random.split(k_run, config.num_frames))
         # Let a stopped robot finish its step and settle before the final pose is read.
         final = gait.torso_pose(_settle(gstate, gp, sub_dt), gp)
         pos_err = jnp.linalg.norm(est[:, :2] - truth[:, :2], axis=-1)
@@ -272,7 +277,8 @@ class _UKFState(NamedTuple):
 
 
 def _tracker(config: EpisodeConfig):
-    """(init(key, start) -> state, step(key, state, points, mask, params) -> (state, est))."""
+    """(init(key, start) -> state, step(key, state, points, mask, params, turn) -> (state, est)),
+    ``turn`` being the turn rate (rad/s) commanded over the last frame (used by "pf3")."""
     n = config.num_particles
     dtype = config.dtype
     model = config.model
@@ -289,7 +295,7 @@ def _tracker(config: EpisodeConfig):
             return _PFState(particle.ParticleSet(start[:2] + config.init_spread * eps,
                                                  jnp.full((n,), -math.log(n), dtype)), start[2])
 
-        def step(key, state, points, mask, params):
+        def step(key, state, points, mask, params, turn):
             sigma = jnp.exp(params.log_position_noise).astype(dtype)
             frame = depth.DepthFrame(points, mask, state.heading)
             ps, _ = particle.step(
@@ -311,19 +317,27 @@ def _tracker(config: EpisodeConfig):
             return _PFState(particle.ParticleSet(start + spread * eps,
                                                  jnp.full((n,), -math.log(n), dtype)), start[2])
 
-        def step(key, state, points, mask, params):
+        def step(key, state, points, mask, params, turn):
             sigma = jnp.exp(params.log_position_noise).astype(dtype)
             scale = jnp.stack([sigma, sigma, jnp.asarray(config.heading_noise, dtype)])
             frame = depth.DepthFrame(points, mask, state.heading)
 
             def transition(k, x):
+                # The commanded turn drives the heading (a control input, as odometry would):
+                # a pure random walk of 4 deg per frame lags a 7 deg-per-frame turn, and the
+                # count's weak grip on the heading does not pull it back.
                 x = x + scale * jax.random.normal(k, x.shape, x.dtype)
-                return x.at[:, 2].set(wrap(x[:, 2]))
+                return x.at[:, 2].set(wrap(x[:, 2] + turn * config.frame_dt))
 
             ps, _ = particle.step(
                 key, state.particles, frame, transition,
                 lambda z, x: depth.log_likelihood(z, x, model, softness=softness),
                 resampler, vectorized=True)
+            # The likelihood cannot tell theta from theta + pi: fold the heading particles to
+            # the half-circle of the previous estimate (weights unchanged) so that they never
+            # split between the two modes and the circular mean stays meaningful.
+            theta = depth.fold_half_turn(ps.particles[:, 2], state.heading)
+            ps = ps._replace(particles=ps.particles.at[:, 2].set(theta))
             est = particle.weighted_mean(ps, angle_dims=(2,))
             return _PFState(ps, est[2]), est
 
@@ -338,7 +352,7 @@ def _tracker(config: EpisodeConfig):
         mean = jnp.concatenate([start[:2], jnp.zeros(2, dtype)])
         return _UKFState(kalman.Gaussian(mean, cov), start[2])
 
-    def step(key, state, points, mask, params):
+    def step(key, state, points, mask, params, turn):
         sigma = jnp.exp(params.log_position_noise).astype(dtype)
         q = jnp.diag(jnp.stack([sigma ** 2, sigma ** 2, (2 * sigma) ** 2, (2 * sigma) ** 2]))
         pred = ukf.predict(state.belief, lambda x: F @ x, q)

@@ -198,6 +198,30 @@ def test_empty_frame_leaves_particle_weights_uniform():
     np.testing.assert_array_equal(ll, np.zeros(6))
 
 
+def test_likelihood_is_half_turn_symmetric_and_folding_keeps_it(clouds):
+    """The counts cannot tell theta from theta + pi; `fold_half_turn` maps each heading to the
+    representative within a quarter turn of the reference without changing its likelihood."""
+    pts, mask, poses = clouds[1]
+    frame = depth.DepthFrame(pts, mask, 0.0)
+    turned = poses + np.array([0.0, 0.0, np.pi])
+    np.testing.assert_allclose(loglik(frame, turned), loglik(frame, poses), rtol=1e-12)
+    rng = np.random.default_rng(5)
+    theta = rng.uniform(-3 * np.pi, 3 * np.pi, 200)
+    ref_heading = rng.uniform(-np.pi, np.pi, 200)
+    folded = np.asarray(depth.fold_half_turn(theta, ref_heading))
+    # Same heading modulo pi, within [-pi/2, pi/2) of the reference, wrapped.
+    k = (folded - theta) / np.pi
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+    gap = np.angle(np.exp(1j * (folded - ref_heading)))
+    assert np.all(np.abs(gap) <= np.pi / 2 + 1e-12)
+    assert np.all((folded >= -np.pi) & (folded < np.pi))
+    folded_poses = poses.copy()
+    folded_poses[:, 2] = depth.fold_half_turn(poses[:, 2], 0.3)
+    np.testing.assert_allclose(loglik(frame, folded_poses), loglik(frame, poses), rtol=1e-12)
+    np.testing.assert_allclose(depth.fold_half_turn(np.array([3.0, -0.1]), 0.0),
+                               [3.0 - np.pi, -0.1], rtol=1e-12)
+
+
 PF_TRUTH = np.array([0.8, -0.3, 0.6])
 PF_FRAMES = 8
 PF_PARTICLES = 400
