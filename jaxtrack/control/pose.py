@@ -274,7 +274,8 @@ def smooth_init(dtype=None) -> SmoothReachState:
 
 
 def step(state: ReachState, pose: Array, target: Array, params: PoseGains = PoseGains(),
-         limits: PoseLimits = PoseLimits()) -> tuple[ReachState, PoseCommand]:
+         limits: PoseLimits = PoseLimits(), stop_pose: Array | None = None
+         ) -> tuple[ReachState, PoseCommand]:
     r"""One step of Algorithm 1 with the latched stop rule of section 5.3.1.
 
     :math:`s_k = s_{k-1} \lor (\|x - x_t\| \le d_{stop} \land |e_\theta| \le a_{stop})`; the
@@ -287,6 +288,9 @@ def step(state: ReachState, pose: Array, target: Array, params: PoseGains = Pose
       pose: [3] current pose estimate (x, y, theta).
       target: [3] target pose.
       params: `PoseGains`; limits: `PoseLimits`.
+      stop_pose: optional [3] pose on which the stop region is tested instead of ``pose``
+        (the command still follows ``pose``): e.g. the estimate averaged over a step cycle, so
+        that the lateral sway of a walking robot does not trigger the stop at a sway extreme.
 
     Returns:
       ``(state, PoseCommand)``.
@@ -300,10 +304,8 @@ def step(state: ReachState, pose: Array, target: Array, params: PoseGains = Pose
         raise TypeError(f"state must be a pose.ReachState; got {type(state).__name__}")
     _check_poses(pose, target)
     _check_limits(limits)
-    pose, target = _as_arrays(pose, target)
-    valid = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(target))
-    pose, target = _sanitise(pose, target, valid)
-    dist, ang = _errors(pose, target)
+    pose, target, stop_pose, valid = _prepare(pose, target, stop_pose)
+    dist, ang = _errors(stop_pose, target)
     inside = (dist <= limits.stop_distance) & (ang <= limits.stop_angle)
     stopped = jnp.asarray(state.stopped, bool) | (valid & inside)
     velocity, turn_rate = _reference(pose, target, params, limits)
@@ -316,8 +318,8 @@ def step(state: ReachState, pose: Array, target: Array, params: PoseGains = Pose
 
 def smooth_step(state: SmoothReachState, pose: Array, target: Array,
                 params: PoseGains = PoseGains(), limits: PoseLimits = PoseLimits(),
-                distance_softness=0.005, angle_softness=math.radians(1.0)
-                ) -> tuple[SmoothReachState, PoseCommand]:
+                distance_softness=0.005, angle_softness=math.radians(1.0),
+                stop_pose: Array | None = None) -> tuple[SmoothReachState, PoseCommand]:
     r"""`step` with a differentiable (sigmoid-gated) stop, for gradient tuning.
 
     The latch :math:`\lnot s_k = \lnot s_{k-1} \land \lnot \text{inside}_k` becomes
@@ -332,7 +334,7 @@ def smooth_step(state: SmoothReachState, pose: Array, target: Array,
 
     Args:
       state: `SmoothReachState` (from `smooth_init`).
-      pose, target, params, limits: as `step`.
+      pose, target, params, limits, stop_pose: as `step`.
       distance_softness: logistic scale of the distance threshold (m).
       angle_softness: logistic scale of the heading threshold (rad).
 
@@ -350,10 +352,8 @@ def smooth_step(state: SmoothReachState, pose: Array, target: Array,
                         ("angle_softness", angle_softness)):
         if _checks.is_concrete(value) and not float(value) > 0:
             raise ValueError(f"{name} must be > 0; got {value}")
-    pose, target = _as_arrays(pose, target)
-    valid = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(target))
-    pose, target = _sanitise(pose, target, valid)
-    p_in = _stop_probability(pose, target, limits, distance_softness, angle_softness)
+    pose, target, stop_pose, valid = _prepare(pose, target, stop_pose)
+    p_in = _stop_probability(stop_pose, target, limits, distance_softness, angle_softness)
     moving = state.moving * jnp.where(valid, 1.0 - p_in, 1.0)
     velocity, turn_rate = _reference(pose, target, params, limits)
     gate = jnp.where(valid, moving, 0.0)
@@ -428,6 +428,24 @@ def _as_arrays(pose, target):
     target = jnp.asarray(target)
     dtype = jnp.result_type(pose.dtype, target.dtype, jnp.float32)
     return pose.astype(dtype), target.astype(dtype)
+
+
+def _prepare(pose, target, stop_pose):
+    """Arrays of one dtype, the validity flag, non-finite inputs zeroed (see `_sanitise`)."""
+    if stop_pose is None:
+        pose, target = _as_arrays(pose, target)
+        valid = jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(target))
+        pose, target = _sanitise(pose, target, valid)
+        return pose, target, pose, valid
+    _checks.check_shape("stop_pose", stop_pose, (3,), "(x, y, theta)")
+    _checks.check_finite("stop_pose", stop_pose)
+    pose, target = _as_arrays(pose, target)
+    stop_pose = jnp.asarray(stop_pose, pose.dtype)
+    valid = (jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(target))
+             & jnp.all(jnp.isfinite(stop_pose)))
+    pose, target = _sanitise(pose, target, valid)
+    stop_pose = jnp.where(valid, stop_pose, 0.0)
+    return pose, target, stop_pose, valid
 
 
 def _sanitise(pose, target, valid):

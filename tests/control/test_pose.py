@@ -130,6 +130,35 @@ def test_stop_is_latched():
     assert not bool(state.stopped) and float(cmd.turn_rate) < 0
 
 
+def test_stop_pose_decides_the_stop_and_pose_the_command():
+    """With ``stop_pose`` (e.g. a sway-averaged estimate) the stop region is tested on it, while
+    the command still follows ``pose``; the smooth gate does the same."""
+    target = np.array([1.0, 0.0, 0.0])
+    swaying = np.array([0.97, 0.01, 0.05])       # inside, at a sway extreme
+    average = np.array([0.96, 0.04, 0.05])       # the step-cycle mean: 5.7 cm away
+    state, cmd = step(pose.init(), swaying, target, pose.PoseGains(), LIMITS, average)
+    assert not bool(state.stopped)
+    want_v, want_w = reference_velocity(swaying, target, pose.PoseGains(), LIMITS)
+    np.testing.assert_allclose(cmd.velocity, want_v, rtol=1e-12)
+    np.testing.assert_allclose(cmd.turn_rate, want_w, rtol=1e-12)
+    state, cmd = step(pose.init(), average, target, pose.PoseGains(), LIMITS, swaying)
+    assert bool(state.stopped)
+    np.testing.assert_array_equal(cmd.velocity, 0.0)
+    # Without it, the stop is tested on ``pose`` as before.
+    state, _ = step(pose.init(), swaying, target, pose.PoseGains(), LIMITS, None)
+    assert bool(state.stopped)
+    smooth_state, _ = pose.smooth_step(pose.smooth_init(), swaying, target, stop_pose=average)
+    np.testing.assert_allclose(1.0 - smooth_state.moving,
+                               pose.stop_probability(average, target), rtol=1e-12)
+    # A NaN stop pose inside jit gives a zero command, like a NaN pose.
+    state, cmd = step(pose.init(), swaying, target, pose.PoseGains(), LIMITS,
+                      jnp.array([jnp.nan, 0.0, 0.0]))
+    assert not bool(state.stopped)
+    np.testing.assert_array_equal(cmd.velocity, 0.0)
+    with pytest.raises(ValueError, match="stop_pose"):
+        pose.step(pose.init(), swaying, target, stop_pose=np.zeros(2))
+
+
 def test_nan_and_bad_inputs_raise_at_the_boundary():
     good = np.zeros(3)
     with pytest.raises(ValueError, match="target"):

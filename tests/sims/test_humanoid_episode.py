@@ -62,3 +62,5 @@ def test_bad_task_input_is_rejected_with_a_clear_message(sc):
         episode.make_params([1.0, 0.0, 0.0], lambda_x=-1.0)
     with pytest.raises(ValueError, match="unknown tracker 'kcf'"):
         episode.make_episode(episode.EpisodeConfig(sc, tracker="kcf"))
+    with pytest.raises(ValueError, match="sway_frames"):
+        episode.make_episode(episode.EpisodeConfig(sc, sway_frames=0))
