@@ -102,9 +102,13 @@ class EpisodeConfig:
       sway_frames: frames of the step-cycle average used by the stop rule and the success
         criterion (module notes); None: one step cycle, ``round(2 * step_period / frame_dt)``;
         1: instantaneous.
-      smooth: differentiable variant (sigmoid-edged count with ``softness``, stop-gradient
+      smooth: differentiable variant (sigmoid-edged count with ``softness``, differentiable
         resampling, smooth stop gate) for gradient tuning.
       softness: edge width (m) of the smooth count.
+      smooth_resampling: resampler of the smooth variant: "stop_gradient" (Scibior & Wood:
+        unbiased score of the expected estimate, but its variance grows with the horizon) or
+        "ot" (entropy-regularised optimal transport, ``ot_epsilon``: a pathwise-differentiable
+        surrogate, the particle cloud moves smoothly with the weights).
       dtype: float dtype of the simulation.
     """
 
@@ -127,6 +131,8 @@ class EpisodeConfig:
     sway_frames: int | None = None
     smooth: bool = False
     softness: float = 0.01
+    smooth_resampling: str = "stop_gradient"
+    ot_epsilon: float = 0.1
     dtype: type = jnp.float32
 
 
@@ -320,7 +326,15 @@ def _tracker(config: EpisodeConfig):
     n = config.num_particles
     dtype = config.dtype
     model = config.model
-    resampler = (particle.stop_gradient_resampling() if config.smooth else particle.systematic)
+    if not config.smooth:
+        resampler = particle.systematic
+    elif config.smooth_resampling == "ot":
+        resampler = particle.optimal_transport_resampling(config.ot_epsilon)
+    elif config.smooth_resampling == "stop_gradient":
+        resampler = particle.stop_gradient_resampling()
+    else:
+        raise ValueError(f"unknown smooth_resampling {config.smooth_resampling!r}; choose "
+                         f"'stop_gradient' or 'ot'")
     softness = config.softness if config.smooth else None
 
     def heading_from_pca(points, mask, centre, prev):

@@ -64,3 +64,6 @@ def test_bad_task_input_is_rejected_with_a_clear_message(sc):
         episode.make_episode(episode.EpisodeConfig(sc, tracker="kcf"))
     with pytest.raises(ValueError, match="sway_frames"):
         episode.make_episode(episode.EpisodeConfig(sc, sway_frames=0))
+    with pytest.raises(ValueError, match="unknown smooth_resampling 'sinkhorn'"):
+        episode.make_episode(episode.EpisodeConfig(sc, smooth=True,
+                                                   smooth_resampling="sinkhorn"))
