@@ -238,3 +238,16 @@ def fmt_float(x: float | None, digits: int = 3) -> str:
         return f"{x:.0f}"
     decimals = digits - 1 - int(f"{mag:e}".split("e")[1])
     return f"{x:.{max(decimals, 0)}f}"
+
+
+def git_describe(path: str | None = None) -> str:
+    """``git describe --always --dirty`` of the repository holding ``path`` (default: the
+    repository of this file), or "unknown"."""
+    import subprocess
+
+    root = os.path.dirname(os.path.abspath(path or __file__))
+    try:
+        return subprocess.run(["git", "-C", root, "describe", "--always", "--dirty"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
