@@ -56,7 +56,7 @@ GNN assignments are compared (scans with any difference), and the whole-episode 
 of both libraries are compared (each running its own recursion on the same detections).
 
 Usage:
-    python benchmarks/association.py            # full run (about 10-20 min on a loaded 2-core VM)
+    python benchmarks/association.py            # full run (20-30 min on a loaded 2-core VM)
     python benchmarks/association.py --quick    # smoke test (8 episodes x 5 scans)
     python benchmarks/association.py --targets 10 --episodes 50 --steps 10
 
@@ -420,7 +420,7 @@ def run_k(K, scn, args, rows, store):
     print(f"\n[K = {K}: {E} episodes x {T} scans, capacity M = {M}] ...", flush=True)
     calls, meta = {}, {}
     for label, method, kw, primary, note in jaxtrack_variants(args):
-        name = f"jaxtrack {label}" + ("" if primary else f" ({note})")
+        name = f"jaxtrack {label}" + ("" if primary else f", {note}")
         fn, fargs = jaxtrack_batched(method, scn, jnp.float32, **kw)
         calls[name] = (fn, fargs)
         meta[name] = (method, "jaxtrack", label, E, T, f"f32, jit(vmap); {note}", primary)
@@ -479,7 +479,7 @@ def table(rows):
         ratio = "-"
         if r.library == "stonesoup" and (r.K, r.method) in base:
             ratio = f"{r.us / base[(r.K, r.method)]:.1f}"
-        body.append([r.K, r.variant if r.library == "stonesoup" else r.variant,
+        body.append([r.K, r.variant,
                      r.library, r.episodes, r.scans, _common.fmt_float(r.us), ratio,
                      "-" if r.timing.first_call is None else f"{r.timing.first_call:.1f}",
                      _common.fmt_float(r.cpu_us), f"{r.timing.clean}/{r.timing.repeats}",
