@@ -1,0 +1,1 @@
+"""Person following: a wheeled robot follows its user among other people (seeds 001-004)."""
