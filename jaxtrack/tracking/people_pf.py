@@ -1,0 +1,381 @@
+r"""People particle filter fusing several detectors, with particle clustering (seed 004, Alg. 1).
+
+One particle set ``[N, 4]`` of ``[p_x, p_y, v_x, v_y]`` represents the density of *all* people
+around the robot (eq. 2). One `step`:
+
+1. resample (systematic by default, or a differentiable scheme of `jaxtrack.filters.particle`);
+2. propagate with the constant-velocity model (the proposal :math:`\pi_t` of Algorithm 1), and
+   replace a fraction ``birth_fraction`` of the particles by *births* drawn around the previous
+   scan's detections (beyond the seed: without births a density filter loses anyone it is not
+   already tracking, and every newcomer would have to wander into existing particles; births from
+   the *previous* scan must be confirmed by the current one, so a one-off false positive does not
+   confirm itself);
+3. weight by the product of the sensors' likelihoods (line 3 of Algorithm 1,
+   :math:`\tilde w \propto \mathcal{L}_L \mathcal{L}_K`). The seed leaves the sensor models
+   :math:`\mathrm{prob}(P_s \mid p)` unspecified; here each is the single-person likelihood ratio
+   against clutter:
+
+   .. math::
+       \mathcal{L}_s(p) = 1 - P_D^s f_s(p) + P_D^s f_s(p) \sum_j
+       \frac{\mathcal{N}(z^s_j;\, p,\, \sigma_s^2 I)}{\lambda_s},
+
+   with :math:`f_s(p) \in [0, 1]` a smooth (sigmoid-edged) indicator of the sensor's field of view
+   (bearing and range from the robot), so that a person outside the camera's 57 degrees keeps its
+   weight instead of being starved by the people the camera sees;
+4. cluster with Algorithms 2-5 (`jaxtrack.tracking.clustering.kclusterise`, dynamic threshold of
+   eq. 5) into at most ``max_clusters`` Gaussian person estimates;
+5. balance the clusters' masses (beyond the seed): one density for everyone makes people compete
+   for particles, and a person the RGB-D camera missed for a scan loses most of them (the
+   likelihood ratio of a detected person is ~100x that of a missed one). As in mixture particle
+   filters (Vermaak, Doucet and Perez, ICCV 2003), each cluster supported by a detection this
+   scan (one within ``support_radius``) is raised to at least ``cluster_floor`` of the mass
+   before the next resampling; unsupported clusters (a false positive's births) keep their mass
+   and die out;
+6. select the target (the user): the cluster nearest to the last target estimate, within a gate.
+
+Every shape is fixed (detections padded with masks), so a step jits once and vmaps over episodes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+from jaxtrack import _checks
+from jaxtrack.angles import wrap
+from jaxtrack.filters import particle
+from jaxtrack.models import motion
+from jaxtrack.tracking import clustering
+
+Array = jax.Array
+
+__all__ = ["PeoplePFConfig", "PeoplePFParams", "Scan", "PeoplePFState", "init", "step",
+           "log_likelihood", "field_of_view", "select_target"]
+
+_RESAMPLERS = ("systematic", "multinomial", "stratified", "stop_gradient", "soft")
+
+
+@dataclasses.dataclass(frozen=True)
+class PeoplePFConfig:
+    """Static configuration (changing it recompiles).
+
+    Attributes:
+      num_particles: N.
+      max_clusters: N_K of Algorithm 2.
+      birth_fraction: fraction of the particles re-drawn around the previous detections.
+      threshold_mode: "half_mean" or "paper" (see `clustering.dynamic_threshold`).
+      threshold_floor: lower bound of the clustering threshold (m); eq. 5 gives 0 with fewer
+        than two detections per sensor.
+      min_cluster_weight: a cluster lighter than this is not a person estimate.
+      gate: a cluster farther than this (m) from the predicted target is not the target.
+      resampler: "systematic" (default, exact), "multinomial", "stratified", "stop_gradient"
+        (unbiased score-function gradients) or "soft" (mixing ``soft_alpha``).
+      soft_alpha: mixing of soft resampling.
+      cluster_floor: minimum mass of a detection-supported cluster (0 disables balancing).
+      support_radius: a cluster is supported when a detection lies this close to its mean (m).
+      fov_softness: width (rad and m) of the sigmoid edges of the field of view.
+    """
+
+    num_particles: int = 512
+    max_clusters: int = 8
+    birth_fraction: float = 0.1
+    threshold_mode: str = "half_mean"
+    threshold_floor: float = 0.4
+    min_cluster_weight: float = 0.03
+    gate: float = 1.0
+    resampler: str = "systematic"
+    soft_alpha: float = 0.5
+    cluster_floor: float = 0.1
+    support_radius: float = 0.6
+    fov_softness: float = 0.05
+
+    def __post_init__(self):
+        _checks.check_options("resampler", (self.resampler,), _RESAMPLERS)
+        _checks.check_options("threshold_mode", (self.threshold_mode,), ("half_mean", "paper"))
+        if self.num_particles < 2 or self.max_clusters < 1:
+            raise ValueError("need num_particles >= 2 and max_clusters >= 1")
+        if not 0.0 <= self.birth_fraction < 1.0:
+            raise ValueError(f"birth_fraction must be in [0, 1); got {self.birth_fraction}")
+        if self.gate <= 0 or self.fov_softness <= 0:
+            raise ValueError("gate and fov_softness must be > 0")
+
+    @property
+    def num_births(self) -> int:
+        return int(round(self.birth_fraction * self.num_particles))
+
+    def resampling(self):
+        if self.resampler == "stop_gradient":
+            return particle.stop_gradient_resampling()
+        if self.resampler == "soft":
+            return particle.soft_resampling(self.soft_alpha)
+        return self.resampler
+
+
+jax.tree_util.register_static(PeoplePFConfig)
+
+
+class PeoplePFParams(NamedTuple):
+    """Tunable parameters (unconstrained leaves). Build with `PeoplePFParams.create`.
+
+    Attributes:
+      log_q: log CV acceleration spectral density (m^2/s^3).
+      log_std: [S] log detection-noise std of each sensor (m).
+      logit_p_detect: [S] logit detection probability of each sensor.
+      log_clutter_density: [S] log clutter density of each sensor (1/m^2).
+      log_birth_std: log position std of births around a detection (m).
+      log_birth_speed_std: log velocity std of births (m/s).
+      dt: scan period (s).
+      config: `PeoplePFConfig` (static).
+    """
+
+    log_q: Array
+    log_std: Array
+    logit_p_detect: Array
+    log_clutter_density: Array
+    log_birth_std: Array
+    log_birth_speed_std: Array
+    dt: Array
+    config: PeoplePFConfig
+
+    @staticmethod
+    def create(config: PeoplePFConfig = PeoplePFConfig(), *, dt=0.1, q=1.0, std=(0.1, 0.3),
+               p_detect=(0.8, 0.8), clutter_density=(0.05, 0.05), birth_std=0.2,
+               birth_speed_std=0.5, dtype=jnp.float32) -> "PeoplePFParams":
+        """Parameters from natural values; one entry of ``std``, ``p_detect`` and
+        ``clutter_density`` per sensor (defaults: laser legs 0.1 m, RGB-D 0.3 m as seed 003).
+
+        Example:
+          >>> params = PeoplePFParams.create(PeoplePFConfig(num_particles=256))
+        """
+        std, pd, lam = (jnp.atleast_1d(jnp.asarray(x, dtype)) for x in
+                        (std, p_detect, clutter_density))
+        if not std.shape == pd.shape == lam.shape:
+            raise ValueError("std, p_detect and clutter_density need one entry per sensor")
+        if min(q, dt, birth_std, birth_speed_std) <= 0 or bool(jnp.any(std <= 0)) or \
+                bool(jnp.any(lam <= 0)):
+            raise ValueError("q, dt, std, clutter_density and the birth stds must be > 0")
+        if bool(jnp.any((pd <= 0) | (pd >= 1))):
+            raise ValueError("p_detect must be in (0, 1)")
+        f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+        return PeoplePFParams(f(jnp.log(q)), jnp.log(std), jnp.log(pd) - jnp.log1p(-pd),
+                              jnp.log(lam), f(jnp.log(birth_std)), f(jnp.log(birth_speed_std)),
+                              f(dt), config)
+
+
+class Scan(NamedTuple):
+    """One sensor's detections in the filter frame and its field of view.
+
+    Attributes:
+      xy: [M, 2] detections (filter frame); mask: [M] bools.
+      fov: [3] ``(half_angle rad, min_range m, max_range m)`` around the robot's heading.
+    """
+
+    xy: Array
+    mask: Array
+    fov: Array
+
+
+class PeoplePFState(NamedTuple):
+    """Filter state.
+
+    Attributes:
+      particles: `ParticleSet` ([N, 4] in the filter frame, normalised log weights).
+      clusters: `clustering.Clusters` of the last step.
+      target_mean: [4] target (user) estimate; target_cov: [4, 4].
+      target_found: bool, a cluster was associated with the target at the last step.
+      births: [B, 2] detections of the last scan to draw births around; birth_mask: [B].
+    """
+
+    particles: particle.ParticleSet
+    clusters: clustering.Clusters
+    target_mean: Array
+    target_cov: Array
+    target_found: Array
+    births: Array
+    birth_mask: Array
+
+
+def field_of_view(xy: Array, robot_pose: Array, fov: Array, softness: float = 0.05) -> Array:
+    """Smooth indicator [..] in [0, 1] that points ``xy [..., 2]`` lie in a sensor's field of
+    view ``fov = (half_angle, min_range, max_range)`` at ``robot_pose = (x, y, theta)``:
+    a product of sigmoids of width ``softness`` on bearing and range."""
+    d = xy - robot_pose[:2]
+    rng = jnp.sqrt(jnp.sum(d**2, -1) + 1e-12)
+    bearing = wrap(jnp.arctan2(d[..., 1], d[..., 0]) - robot_pose[2])
+    s = jax.nn.sigmoid
+    return (s((fov[0] - jnp.abs(bearing)) / softness) * s((rng - fov[1]) / softness)
+            * s((fov[2] - rng) / softness))
+
+
+def log_likelihood(params: PeoplePFParams, positions: Array, scans: tuple[Scan, ...],
+                   robot_pose: Array) -> Array:
+    r"""Summed log likelihood ratios :math:`\sum_s \log \mathcal{L}_s(p)` (module docstring).
+
+    Args:
+      params: `PeoplePFParams` with one entry per scan.
+      positions: [N, 2] candidate person positions (filter frame).
+      scans: one `Scan` per sensor.
+      robot_pose: [3] robot pose in the filter frame.
+
+    Returns:
+      [N] log likelihoods.
+    """
+    total = jnp.zeros(positions.shape[0], positions.dtype)
+    for s, scan in enumerate(scans):
+        var = jnp.exp(2 * params.log_std[s])
+        d2 = jnp.sum((positions[:, None, :] - scan.xy[None, :, :]) ** 2, -1)  # [N, M]
+        log_n = -0.5 * d2 / var - jnp.log(2 * jnp.pi * var) - params.log_clutter_density[s]
+        log_n = jnp.where(scan.mask[None, :], log_n, -jnp.inf)
+        pd = jax.nn.sigmoid(params.logit_p_detect[s]) * field_of_view(
+            positions, robot_pose, scan.fov, params.config.fov_softness)
+        terms = jnp.concatenate([jnp.log1p(-pd)[:, None], jnp.log(pd)[:, None] + log_n], 1)
+        total = total + logsumexp(terms, axis=1)
+    return total
+
+
+def select_target(clusters: clustering.Clusters, predicted: Array, gate: float,
+                  min_weight: float) -> tuple[Array, Array]:
+    """Index of the cluster nearest to the predicted target position [2] among clusters
+    heavier than ``min_weight``, and whether it lies within ``gate`` (m)."""
+    d2 = jnp.sum((clusters.means[:, :2] - predicted) ** 2, -1)
+    ok = clusters.mask & (clusters.weights >= min_weight)
+    d2 = jnp.where(ok, d2, jnp.inf)
+    idx = jnp.argmin(d2)
+    return idx, d2[idx] <= gate**2
+
+
+def init(key: Array, params: PeoplePFParams, target_position: Array, *, position_std=0.2,
+         speed_std=0.3, max_births: int = 16) -> PeoplePFState:
+    """Particles around the known initial target position [2] (the robot is shown whom to
+    follow), zero mean velocity.
+
+    Example:
+      >>> state = init(jax.random.PRNGKey(0), params, jnp.array([1.5, 0.0]))
+    """
+    cfg = params.config
+    target_position = jnp.asarray(target_position, params.dt.dtype)
+    _checks.check_shape("target_position", target_position, (2,))
+    std = jnp.array([position_std, position_std, speed_std, speed_std], target_position.dtype)
+    mean = jnp.concatenate([target_position, jnp.zeros(2, target_position.dtype)])
+    x = mean + std * jax.random.normal(key, (cfg.num_particles, 4), target_position.dtype)
+    n = cfg.num_particles
+    lw = jnp.full(n, -jnp.log(n), x.dtype)
+    k = cfg.max_clusters
+    clusters = clustering.Clusters(
+        jnp.zeros(k, x.dtype).at[0].set(1.0), jnp.zeros((k, 4), x.dtype).at[0].set(mean),
+        jnp.tile(jnp.diag(std**2), (k, 1, 1)), jnp.zeros(k, bool).at[0].set(True),
+        jnp.zeros((k, 2), x.dtype).at[0].set(target_position), jnp.zeros(n, jnp.int32))
+    return PeoplePFState(particle.ParticleSet(x, lw), clusters, mean, jnp.diag(std**2),
+                         jnp.asarray(True), jnp.zeros((max_births, 2), x.dtype),
+                         jnp.zeros(max_births, bool))
+
+
+def step(key: Array, state: PeoplePFState, scans: tuple[Scan, ...], robot_pose: Array,
+         params: PeoplePFParams) -> PeoplePFState:
+    """One step of Algorithm 1 plus clustering and target selection (module docstring).
+
+    Args:
+      key: PRNG key.
+      state: `PeoplePFState`.
+      scans: tuple of `Scan`, one per sensor, in the order of ``params.log_std``; an empty
+        sensor is a scan whose mask is all False.
+      robot_pose: [3] robot pose in the filter frame (for the fields of view).
+      params: `PeoplePFParams`.
+
+    Returns:
+      The new `PeoplePFState`.
+
+    Example:
+      >>> scans = (Scan(laser_xy, laser_mask, jnp.array([2.09, 0.1, 5.6])),
+      ...          Scan(rgbd_xy, rgbd_mask, jnp.array([0.5, 0.5, 4.5])))
+      >>> state = step(key, state, scans, robot_pose, params)
+      >>> state.target_mean[:2]
+    """
+    _check(state, scans, robot_pose, params)
+    return _step(key, state, scans, robot_pose, params)
+
+
+def _step(key, state, scans, robot_pose, params):
+    cfg = params.config
+    dtype = state.particles.particles.dtype
+    robot_pose = jnp.asarray(robot_pose, dtype)
+    scans = tuple(Scan(jnp.asarray(s.xy, dtype), jnp.asarray(s.mask, bool),
+                       jnp.asarray(s.fov, dtype)) for s in scans)
+    F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
+    chol_q = jnp.linalg.cholesky(Q + 1e-9 * jnp.eye(4, dtype=Q.dtype)).astype(dtype)
+    F = F.astype(dtype)
+    nb = cfg.num_births
+    births, bmask = state.births, state.birth_mask
+
+    def transition(k, x):
+        k1, k2, k3 = jax.random.split(k, 3)
+        x = x @ F.T + jax.random.normal(k1, x.shape, dtype) @ chol_q.T
+        if nb == 0:
+            return x
+        # Births: uniform over the previous scan's detections.
+        logits = jnp.where(bmask, 0.0, -jnp.inf)
+        j = jax.random.categorical(k2, jnp.where(jnp.any(bmask), logits, 0.0), shape=(nb,))
+        noise = jax.random.normal(k3, (nb, 4), dtype)
+        b = jnp.concatenate([births[j] + jnp.exp(params.log_birth_std) * noise[:, :2],
+                             jnp.exp(params.log_birth_speed_std) * noise[:, 2:]], 1)
+        return x.at[-nb:].set(jnp.where(jnp.any(bmask), b, x[-nb:]))
+
+    def loglik(z, x):
+        return log_likelihood(params, x[:, :2], z, robot_pose)
+
+    ps, _ = particle.step(key, state.particles, scans, transition, loglik,
+                          resampler=cfg.resampling(), vectorized=True)
+    all_xy = jnp.concatenate([s.xy for s in scans], 0)
+    all_mask = jnp.concatenate([s.mask for s in scans], 0)
+    other = scans[1] if len(scans) > 1 else Scan(scans[0].xy[:0], scans[0].mask[:0], None)
+    threshold = clustering.dynamic_threshold(
+        scans[0].xy, other.xy, scans[0].mask, other.mask, floor=cfg.threshold_floor,
+        mode=cfg.threshold_mode)
+    clusters = clustering.kclusterise(ps.particles, ps.log_weights, threshold, cfg.max_clusters)
+    if cfg.cluster_floor > 0:
+        ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)
+    pred_mean = F @ state.target_mean
+    pred_cov = F @ state.target_cov @ F.T + Q.astype(dtype)
+    idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight)
+    mean = jnp.where(found, clusters.means[idx], pred_mean)
+    cov = jnp.where(found, clusters.covs[idx], pred_cov)
+    # The next births are drawn around this scan's detections (the first ``cap`` present).
+    cap = state.births.shape[0]
+    order = jnp.argsort(~all_mask, stable=True)[:cap]
+    b_xy = jnp.zeros((cap, 2), dtype).at[:order.shape[0]].set(
+        jnp.where(all_mask[order, None], all_xy[order], 0.0))
+    b_mask = jnp.zeros(cap, bool).at[:order.shape[0]].set(all_mask[order])
+    return PeoplePFState(ps, clusters, mean, cov, found, b_xy, b_mask)
+
+
+def _balance(ps, clusters, det_xy, det_mask, cfg):
+    d2 = jnp.sum((clusters.means[:, None, :2] - det_xy[None]) ** 2, -1)
+    supported = clusters.mask & jnp.any(det_mask[None] & (d2 <= cfg.support_radius**2), 1)
+    w = clusters.weights
+    target = jnp.where(supported, jnp.maximum(w, cfg.cluster_floor), w)
+    shift = jnp.where(w > 0, jnp.log(jnp.where(w > 0, target, 1.0))
+                      - jnp.log(jnp.where(w > 0, w, 1.0)), 0.0)
+    lw = ps.log_weights + jnp.where(clusters.labels >= 0, shift[clusters.labels], 0.0)
+    lw = particle.normalize(lw)
+    total = jnp.sum(target)
+    return (particle.ParticleSet(ps.particles, lw),
+            clusters._replace(weights=target / jnp.where(total > 0, total, 1.0)))
+
+
+def _check(state, scans, robot_pose, params):
+    if not isinstance(state, PeoplePFState):
+        raise TypeError(f"state must be a PeoplePFState; got {type(state).__name__}")
+    if not isinstance(scans, (tuple, list)) or not scans:
+        raise TypeError("scans must be a non-empty tuple of Scan")
+    if len(scans) != params.log_std.shape[0]:
+        raise ValueError(f"got {len(scans)} scans but parameters for {params.log_std.shape[0]}"
+                         " sensors")
+    for i, s in enumerate(scans):
+        _checks.check_shape(f"scans[{i}].xy", s.xy, (None, 2))
+        _checks.check_shape(f"scans[{i}].mask", s.mask, (s.xy.shape[0],))
+        _checks.check_shape(f"scans[{i}].fov", s.fov, (3,))
+    _checks.check_shape("robot_pose", robot_pose, (3,))
