@@ -1,0 +1,281 @@
+"""User estimators of the person-following scene, chosen by name.
+
+All work in the robot's *odometry frame* (the frame in which the robot believes it moves; it
+drifts from the world frame with the odometry noise), take the people detected by the laser leg
+detector and by the RGB-D detector in that frame, and return the user's estimate there:
+
+- ``"pf"`` (seed 004): `jaxtrack.tracking.people_pf`, one particle density over everyone fusing
+  the laser and RGB-D likelihoods, particle clustering, the user being the cluster nearest to the
+  last user estimate; ``sensors="laser"`` or ``"rgbd"`` gives the single-sensor versions;
+- ``"gnn"``, ``"jpda"``, ``"nnjpda"`` (seeds 001 / 003): the multi-target tracker
+  `jaxtrack.tracking.tracker` over everyone (UKF constant velocity), the user being a track
+  (kept by id; re-acquired as the track nearest to the last estimate when it dies);
+- ``"kf"`` (seed 002): the 6-state Kalman filter of the user in the *robot* frame with the
+  odometry-driven rotation input (eqs. 4-11), measurements the nearest gated detection and the
+  odometry velocity, and the adaptive AR heading filter (eqs. 12-13).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxtrack import _checks
+from jaxtrack.angles import wrap
+from jaxtrack.filters import heading as heading_filter
+from jaxtrack.filters import kalman
+from jaxtrack.models import measurement, motion
+from jaxtrack.tracking import people_pf, tracker
+
+Array = jax.Array
+
+__all__ = ["ESTIMATORS", "EstimatorConfig", "EstimatorParams", "Estimate", "Detected", "init",
+           "update", "to_frame", "from_frame"]
+
+ESTIMATORS = ("pf", "gnn", "jpda", "nnjpda", "kf")
+SENSORS = ("both", "laser", "rgbd")
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimatorConfig:
+    """Static estimator choice.
+
+    Attributes:
+      kind: one of `ESTIMATORS`.
+      sensors: "both", "laser" or "rgbd" (which detections the estimator uses).
+      num_particles, max_clusters: particle filter sizes.
+      capacity: tracker slots.
+      jpda_method: "exact" or "lbp".
+      appearance: use the RGB-D colour feature in the GNN cost (seed 001's online classifier).
+      gate: user re-acquisition radius (m).
+      laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
+    """
+
+    kind: str = "pf"
+    sensors: str = "both"
+    num_particles: int = 256
+    max_clusters: int = 8
+    resampler: str = "systematic"
+    capacity: int = 10
+    jpda_method: str = "exact"
+    appearance: bool = False
+    gate: float = 1.0
+    laser_fov: tuple = (2.094, 0.1, 5.6)
+    rgbd_fov: tuple = (0.497, 0.5, 4.5)
+
+    def __post_init__(self):
+        _checks.check_options("estimator", (self.kind,), ESTIMATORS)
+        _checks.check_options("sensors", (self.sensors,), SENSORS)
+
+
+jax.tree_util.register_static(EstimatorConfig)
+
+
+class EstimatorParams(NamedTuple):
+    """Tunable estimator parameters: ``pf`` (`people_pf.PeoplePFParams`), ``tracker``
+    (`tracker.TrackerParams`), and for ``"kf"``: log acceleration variances of person and robot,
+    log detection std, log odometry-velocity std, chi-square gate probability."""
+
+    pf: people_pf.PeoplePFParams
+    tracker: tracker.TrackerParams
+    kf_log_q_person: Array
+    kf_log_q_robot: Array
+    kf_log_r: Array
+    kf_log_r_odom: Array
+    kf_gate: Array
+    config: EstimatorConfig
+
+    @staticmethod
+    def create(config: EstimatorConfig = EstimatorConfig(), *, dt=0.1, laser_std=0.1,
+               rgbd_std=0.3, q=1.0, dtype=jnp.float32) -> "EstimatorParams":
+        """Natural-value defaults: laser people 0.1 m, RGB-D 0.3 m (seed 003)."""
+        pf_cfg = people_pf.PeoplePFConfig(num_particles=config.num_particles,
+                                          max_clusters=config.max_clusters, gate=config.gate,
+                                          resampler=config.resampler)
+        pf = people_pf.PeoplePFParams.create(pf_cfg, dt=dt, q=q, std=(laser_std, rgbd_std),
+                                             dtype=dtype)
+        assoc = {"gnn": "gnn", "jpda": "jpda", "nnjpda": "nn_jpda"}.get(config.kind, "gnn")
+        tcfg = tracker.TrackerConfig(capacity=config.capacity, association=assoc,
+                                     jpda_method=config.jpda_method, filter="ukf",
+                                     num_features=3 if config.appearance else 0,
+                                     max_misses=8, max_position_std=1.0)
+        tparams = tracker.TrackerParams.create(
+            tcfg, dt=dt, q=q, r_std=(laser_std, rgbd_std), p_detect=0.8, clutter_density=0.02,
+            alpha=1.0 if config.appearance else 0.0, dtype=dtype)
+        f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+        return EstimatorParams(pf, tparams, f(jnp.log(q)), f(jnp.log(0.5)),
+                               f(jnp.log(laser_std)), f(jnp.log(0.05)), f(0.999), config)
+
+
+class Detected(NamedTuple):
+    """Detections of one 10 Hz frame in the odometry frame.
+
+    Attributes:
+      laser_xy: [L, 2]; laser_mask: [L].
+      rgbd_xy: [K, 2]; rgbd_mask: [K]; rgbd_colour: [K, 3].
+    """
+
+    laser_xy: Array
+    laser_mask: Array
+    rgbd_xy: Array
+    rgbd_mask: Array
+    rgbd_colour: Array
+
+
+class Estimate(NamedTuple):
+    """What the controller and the metrics see (odometry frame).
+
+    Attributes:
+      user: [4] ``[p_x, p_y, v_x, v_y]``; user_found: bool, measured at this frame.
+      user_heading: scalar (rad); user_id: int32 identity of the estimate (-1 if none).
+      people: [P, 2] every person estimate; people_ids: [P] int32; people_mask: [P].
+    """
+
+    user: Array
+    user_found: Array
+    user_heading: Array
+    user_id: Array
+    people: Array
+    people_ids: Array
+    people_mask: Array
+
+
+def to_frame(pose: Array, xy: Array) -> Array:
+    """World points [..., 2] into the frame of ``pose = (x, y, theta)``."""
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    d = xy - pose[:2]
+    return jnp.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+
+
+def from_frame(pose: Array, xy: Array) -> Array:
+    """Points [..., 2] in the frame of ``pose`` into the parent frame."""
+    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+    return pose[:2] + jnp.stack([c * xy[..., 0] - s * xy[..., 1],
+                                 s * xy[..., 0] + c * xy[..., 1]], -1)
+
+
+def _rotate(theta, v):
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
+
+
+def _sensor_masks(cfg, det):
+    lm = det.laser_mask & (cfg.sensors != "rgbd")
+    km = det.rgbd_mask & (cfg.sensors != "laser")
+    return lm, km
+
+
+def init(key: Array, params: EstimatorParams, user_xy: Array, odom_pose: Array):
+    """Initial state; the robot is shown its user at ``user_xy`` [2] (odometry frame)."""
+    cfg = params.config
+    dtype = params.kf_log_r.dtype
+    user_xy = jnp.asarray(user_xy, dtype)
+    if cfg.kind == "pf":
+        return people_pf.init(key, params.pf, user_xy,
+                              max_births=8 + 8)
+    if cfg.kind == "kf":
+        rel = to_frame(jnp.asarray(odom_pose, dtype), user_xy)
+        mean = jnp.concatenate([rel, jnp.zeros(4, dtype)])
+        cov = jnp.diag(jnp.array([0.04, 0.04, 0.25, 0.25, 0.01, 0.01], dtype))
+        return (kalman.Gaussian(mean, cov), jnp.zeros((), dtype))
+    tr = tracker.init(params.tracker.config, dtype)
+    # The user's track exists from the start (confirmed, id 0), as the robot was shown its user.
+    tr = tr._replace(mean=tr.mean.at[0, :2].set(user_xy),
+                     cov=tr.cov.at[0].set(jnp.diag(jnp.array([0.04, 0.04, 0.25, 0.25], dtype))),
+                     id=tr.id.at[0].set(0), status=tr.status.at[0].set(tracker.CONFIRMED),
+                     history=tr.history.at[0].set(1), hits=tr.hits.at[0].set(1),
+                     next_id=jnp.int32(1))
+    return (tr, jnp.int32(0), jnp.concatenate([user_xy, jnp.zeros(2, dtype)]))
+
+
+def update(key: Array, state, det: Detected, odom_pose: Array, odom_rate: Array,
+           odom_speed: Array, params: EstimatorParams):
+    """One 10 Hz frame. ``odom_pose`` [3]: robot pose in the odometry frame after the motion;
+    ``odom_rate``, ``odom_speed``: the odometry's turn rate (rad/s) and forward speed (m/s) over
+    the last period. Returns ``(state, Estimate)``."""
+    cfg = params.config
+    lm, km = _sensor_masks(cfg, det)
+    if cfg.kind == "pf":
+        scans = (people_pf.Scan(det.laser_xy, lm, jnp.asarray(cfg.laser_fov)),
+                 people_pf.Scan(det.rgbd_xy, km, jnp.asarray(cfg.rgbd_fov)))
+        state = people_pf.step(key, state, scans, odom_pose, params.pf)
+        cl = state.clusters
+        heading = jnp.arctan2(state.target_mean[3], state.target_mean[2])
+        k = cl.means.shape[0]
+        est = Estimate(state.target_mean, state.target_found, heading,
+                       jnp.where(state.target_found, 0, -1).astype(jnp.int32), cl.means[:, :2],
+                       jnp.arange(k, dtype=jnp.int32), cl.mask)
+        return state, est
+    if cfg.kind == "kf":
+        return _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params)
+    return _tracker_update(state, det, lm, km, params)
+
+
+def _tracker_update(state, det, lm, km, params):
+    tr, user_id, last = state
+    cfg = params.config
+    dtype = tr.mean.dtype
+    L, K = det.laser_xy.shape[0], det.rgbd_xy.shape[0]
+    feats = jnp.concatenate([jnp.zeros((L, 3), dtype), det.rgbd_colour.astype(dtype)], 0)
+    dets = tracker.Detections(
+        jnp.concatenate([det.laser_xy, det.rgbd_xy], 0).astype(dtype),
+        jnp.concatenate([lm, km], 0),
+        jnp.concatenate([jnp.zeros(L, jnp.int32), jnp.ones(K, jnp.int32)]),
+        jnp.ones(L + K, dtype), feats if cfg.appearance else jnp.zeros((L + K, 0), dtype))
+    tr = tracker.step(tr, dets, params.tracker)
+    live = tr.status != tracker.FREE
+    has = live & (tr.id == user_id)
+    found_old = jnp.any(has)
+    pred = last[:2] + params.tracker.dt * last[2:]
+    d2 = jnp.sum((tr.mean[:, :2] - pred) ** 2, -1)
+    d2 = jnp.where(live, d2, jnp.inf)
+    near = jnp.argmin(d2)
+    reacquire = ~found_old & (d2[near] <= cfg.gate**2)
+    slot = jnp.where(found_old, jnp.argmax(has), near)
+    found = found_old | reacquire
+    user_id = jnp.where(found, tr.id[slot], user_id)
+    mean = jnp.where(found, tr.mean[slot], jnp.concatenate([pred, last[2:]]))
+    confirmed = tr.status == tracker.CONFIRMED
+    est = Estimate(mean, found & (tr.misses[slot] == 0), tr.heading[slot],
+                   jnp.where(found, user_id, -1).astype(jnp.int32), tr.mean[:, :2],
+                   tr.id, confirmed)
+    return (tr, user_id, mean), est
+
+
+def _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params):
+    g, head = state
+    dtype = g.mean.dtype
+    dt = params.tracker.dt
+    F, Q = motion.person_relative(dt, odom_rate, jnp.exp(params.kf_log_q_person),
+                                  jnp.exp(params.kf_log_q_robot))
+    g = kalman.predict(g, F.astype(dtype), Q.astype(dtype))
+    H = measurement.person_relative(dtype)
+    # Candidate positions in the robot frame; nearest gated one (Mahalanobis) is the user.
+    xy = jnp.concatenate([det.laser_xy, det.rgbd_xy], 0)
+    mask = jnp.concatenate([lm, km], 0)
+    rel = to_frame(odom_pose, xy).astype(dtype)
+    r = jnp.exp(params.kf_log_r)
+    S = g.cov[:2, :2] + r**2 * jnp.eye(2, dtype=dtype)
+    d = rel - g.mean[:2]
+    d2 = jnp.einsum("mi,ij,mj->m", d, jnp.linalg.inv(S), d)
+    # chi-square 2-dof quantile in closed form: -2 log(1 - p)
+    gate = -2.0 * jnp.log1p(-params.kf_gate)
+    d2 = jnp.where(mask & (d2 <= gate), d2, jnp.inf)
+    j = jnp.argmin(d2)
+    found = jnp.isfinite(d2[j])
+    ro = jnp.exp(params.kf_log_r_odom)
+    z = jnp.concatenate([jnp.where(found, rel[j], 0.0), jnp.stack([odom_speed, 0.0 * odom_speed])
+                         ]).astype(dtype)
+    R = jnp.diag(jnp.stack([r**2, r**2, ro**2, ro**2])).astype(dtype)
+    zmask = jnp.stack([found, found, True, True])
+    g, _ = kalman.update(g, z, H, R, zmask)
+    head = heading_filter.ar_heading_step(head, g.mean[2:4])
+    user_xy = from_frame(odom_pose, g.mean[:2])
+    user_v = _rotate(odom_pose[2], g.mean[2:4])
+    user = jnp.concatenate([user_xy, user_v])
+    est = Estimate(user, found, wrap(head + odom_pose[2]), jnp.int32(0), user_xy[None],
+                   jnp.zeros(1, jnp.int32), jnp.ones(1, bool))
+    return (g, head), est
