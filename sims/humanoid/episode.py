@@ -3,8 +3,9 @@ r"""The closed loop of seed 000, one episode as a pure function of (key, params)
 Every control period (``frame_dt``, the seed's ~4 Hz):
 
 1. the true gait state is posed (`gait.qpos`), MJX kinematics gives the geom poses, and the
-   zenithal camera renders the robot's window (`sensor.render_window`), adds Kinect noise,
-   back-projects and removes the floor; the ``max_points`` highest points are kept (a fixed
+   zenithal camera renders the robot's window (`sensor.robot_point_cloud`: the cloud's
+   derivative moves rigidly with the torso, see `sensor`), adds Kinect noise, back-projects
+   and removes the floor; the ``max_points`` highest points are kept (a fixed
    capacity: the robot shows about 40 points at 80 x 60);
 2. the tracker updates its estimate (x, y, theta):
 
@@ -206,11 +207,11 @@ def make_episode(config: EpisodeConfig):
     if n_avg < 1:
         raise ValueError(f"sway_frames must be >= 1; got {config.sway_frames}")
 
-    def observe(key, gstate):
+    def observe(key, gstate, torso):
         q = gait.qpos(sc, gstate, gp)
         xpos, xmat = scene_mod.pose_geoms(sc, q)
-        win = sensor.render_window(sc, xpos, xmat, gstate.com, k_win, bg, dtype)
-        pts, mask = sensor.point_cloud(key, sc, win, config.noise)
+        pts, mask = sensor.robot_point_cloud(key, sc, xpos, xmat, torso, k_win, bg,
+                                             config.noise, dtype=dtype)
         score = jnp.where(mask, pts[:, 2], -jnp.inf)
         _, idx = jax.lax.top_k(score, n_pts)
         return pts[idx], mask[idx]
@@ -231,7 +232,7 @@ def make_episode(config: EpisodeConfig):
             gstate, tstate, cstate, history, turn = carry
             k_obs, k_trk, k_gait = jax.random.split(k, 3)
             truth = gait.torso_pose(gstate, gp)
-            pts, mask = observe(k_obs, gstate)
+            pts, mask = observe(k_obs, gstate, truth)
             tstate, est = tracker_step(k_trk, tstate, pts, mask, params, turn)
             history = jnp.concatenate([history[1:], est[None]])
             est_avg = _pose_mean(history)

@@ -19,6 +19,26 @@ radius (tested), and costs :math:`K^2 G` ray-geom tests instead of :math:`H W G`
 Noise (Kinect v1, Khoshelham & Elberink 2012): depth std :math:`\sigma(z) = k_\sigma z^2`,
 quantisation to steps :math:`q(z) = k_q z^2` (disparity quantisation), and missing pixels with
 probability ``dropout``. Quantisation uses a straight-through gradient.
+
+Gradients of the point cloud with respect to the robot's pose (`robot_point_cloud`). A pixel
+looks along a fixed ray, so the pathwise derivative of its back-projected point is that of the
+*depth* along that ray: when the robot slides sideways, a point on its flat head or shoulders
+does not move at all (the head's top is level), and the cloud's true motion — pixels at the
+silhouette switching between floor and robot — is a discontinuity that automatic
+differentiation never sees. Measured on a 64-particle tracker frame (mean over 256 keys): the
+derivative of the blob centroid with respect to the robot's x was 0.04 by AD against 0.9-1.1
+by central differences, and that of the PCA heading with respect to the robot's yaw 0.10
+against about 1. Through a closed loop this removes the feedback from the gradient (the
+controller seems to act on a robot that never moves) and gave gain derivatives of the wrong
+sign. The fix is a reparameterisation: the pixel grid is moved rigidly with the robot's torso
+pose :math:`T = (x, y, \psi)` in the derivative only. The geoms are rendered in the frame
+:math:`T_\delta^{-1}`, :math:`\delta = T - \perp(T)` (the identity in value), and the robot's
+points are mapped back by :math:`T_\delta`: the values are unchanged, and the derivative of
+the cloud with respect to the torso pose is the rigid motion :math:`\partial T` plus the
+pathwise derivative of the limbs *relative* to the torso. This is the exact derivative of the
+expected cloud when the grid's phase relative to the robot is uniform (a camera at a random
+sub-pixel offset: the cloud is then distributed as the same cloud moved with the robot), and
+what the robot's motion in a real camera averages to over frames and keys.
 """
 
 from __future__ import annotations
@@ -36,7 +56,8 @@ from sims.humanoid.scene import Camera, Scene, camera_rays
 Array = jax.Array
 
 __all__ = ["DepthNoise", "Window", "ray_distances", "render", "background", "window_size",
-           "render_window", "add_noise", "back_project", "remove_floor", "point_cloud"]
+           "render_window", "add_noise", "back_project", "remove_floor", "point_cloud",
+           "robot_point_cloud"]
 
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX = 0, 2, 3, 4, 6
 
@@ -249,6 +270,55 @@ def point_cloud(key: Array, scene: Scene, window: Window, noise: DepthNoise = De
     depth, valid = add_noise(key, window.depth, noise)
     pts = back_project(scene.camera, depth, valid, window.row, window.col)
     return pts, remove_floor(pts, valid, floor_threshold)
+
+
+def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: Array,
+                      size: int, background_depth: Array, noise: DepthNoise = DepthNoise(),
+                      floor_threshold=0.06, dtype=jnp.float32) -> tuple[Array, Array]:
+    r"""Noisy, floor-removed point cloud of the robot's window, differentiable in its pose.
+
+    The values are those of `render_window` (centred on ``pose[:2]``) followed by
+    `point_cloud`. The derivative with respect to the torso ``pose`` moves the robot's points
+    rigidly with it (module notes, "Gradients"): with :math:`\delta = T - \perp(T)` (zero in
+    value), the geoms are rendered at :math:`T_\delta^{-1}` (the robot's bulk motion removed
+    from the ray casting's derivative) and the points that hit the robot are mapped by
+    :math:`T_\delta` (rotation by :math:`\delta_\psi` about :math:`\perp(x, y)`, then
+    translation by :math:`(\delta_x, \delta_y)`).
+
+    Args:
+      key: PRNG key (noise); scene: `Scene`.
+      xpos, xmat: world geom poses (from `scene.pose_geoms`).
+      pose: [3] torso pose (x, y, yaw) the geoms were posed from.
+      size: window side K (static, `window_size`); background_depth: [H, W] (`background`).
+      noise: `DepthNoise`; floor_threshold: floor-removal height (m).
+
+    Returns:
+      ``(points [K*K, 3], mask [K*K])``.
+
+    Example:
+      >>> pts, mask = robot_point_cloud(key, sc, xpos, xmat, torso, k, background(sc))
+    """
+    pose = jnp.asarray(pose, dtype)
+    delta = pose - lax.stop_gradient(pose)
+    centre = jnp.concatenate([lax.stop_gradient(pose[:2]), jnp.zeros((1,), dtype)])
+    shift = jnp.concatenate([delta[:2], jnp.zeros((1,), dtype)])
+    c, s = jnp.cos(delta[2]), jnp.sin(delta[2])
+    zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
+    rot = jnp.stack([jnp.stack([c, -s, zero]), jnp.stack([s, c, zero]),
+                     jnp.stack([zero, zero, one])])
+    xpos = jnp.asarray(xpos, dtype)
+    xmat = jnp.asarray(xmat, dtype)
+    # T_delta^{-1}: p -> R^T (p - centre - shift) + centre; orientations R^T M.
+    xpos_rel = (xpos - centre - shift) @ rot + centre
+    xmat_rel = jnp.einsum("ji,gjk->gik", rot, xmat)
+    win = render_window(scene, xpos_rel, xmat_rel, lax.stop_gradient(pose[:2]), size,
+                        background_depth, dtype)
+    pts, mask = point_cloud(key, scene, win, noise, floor_threshold)
+    bg = lax.dynamic_slice(jnp.asarray(background_depth, dtype), (win.row, win.col),
+                           (size, size))
+    on_robot = (win.depth < bg).reshape(-1)
+    moved = (pts - centre) @ rot.T + centre + shift
+    return jnp.where(on_robot[:, None], moved, pts), mask
 
 
 # ---------------------------------------------------------------------------------------------
