@@ -1,5 +1,6 @@
 """2-D laser caster of the following scene against mjx.ray on an MJX model of capsules and boxes."""
 
+import functools
 import math
 
 import jax
@@ -81,13 +82,17 @@ cast = jax.jit(lidar.cast)
 cast_many = jax.jit(jax.vmap(lidar.cast, (0, None, None, None, None)))
 
 
+@functools.partial(jax.jit, static_argnums=4)
+def _mjx_cast(mx, dx, pnt, vecs, groups):
+    return jax.vmap(lambda v: mjx.ray(mx, dx, pnt, v, groups))(vecs)
+
+
 def _mjx_ranges(mj, pose, angles, group):
     _, mx, dx = mj
     phi = pose[2] + np.asarray(angles)
     vecs = jnp.asarray(np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], -1))
     pnt = jnp.array([pose[0], pose[1], H])
-    groups = tuple(int(g == group) for g in range(6))
-    dist, gid = jax.jit(jax.vmap(lambda v: mjx.ray(mx, dx, pnt, v, groups)))(vecs)
+    dist, gid = _mjx_cast(mx, dx, pnt, vecs, tuple(int(g == group) for g in range(6)))
     dist, gid = np.asarray(dist), np.asarray(gid)
     miss = (gid < 0) | (dist > MAX)
     return np.where(miss, MAX, dist), miss

@@ -1,0 +1,473 @@
+r"""People detection from a 2-D laser scan by their legs (seed 004, section III-a; seed 002).
+
+Seed 004 detects legs in the scan of a shin-height laser (Arras et al.'s leg tracker: segments of
+the scan classified by geometric features) and extracts people from legs with four heuristics:
+people have two legs; the legs are close to each other; they move in a similar direction; they
+occlude each other more often than other things occlude them. This module is that pipeline for
+one scan, at fixed capacities with masks (jittable, vmappable):
+
+1. `segment`: split the scan where consecutive returns are more than ``jump`` apart (the jump
+   distance of Arras et al. 2007) or where a beam has no valid return. At most ``max_segments``
+   segments are kept, in beam order; further ones are dropped and counted
+   (``Segments.dropped``).
+2. `features`: per segment, the number of points, the width (first to last point), the mean
+   point, the rms distance to the total-least-squares line (linearity), the algebraic circle
+   fit of Kasa (1976) (radius, centre, rms residual) and the estimated leg axis position.
+3. `leg_candidates`: segments whose point count, width and circle radius fit a human leg
+   (`LegParams`; widths 3-25 cm, near typical leg detectors', where seed 004 trains AdaBoost).
+4. `pair_legs`: greedy pairing, closest pair first, of candidates within ``pair_distance``
+   (legs are close); optional motion cue from the previous frame's legs (pairs whose legs both
+   moved, in directions more than ``max_motion_angle`` apart, are not paired); unpaired legs
+   may count as people (``single_legs``: a leg occluded by the other). A person is the
+   midpoint of their two legs.
+5. `detect` / `detect_people`: the whole chain.
+
+Limits, measured in the tests: any two leg-like objects closer than ``pair_distance`` make a
+person -- table and chair legs *do* look like legs (a 3 cm table leg is a candidate at most
+ranges); only their spacing keeps them apart. One leg hidden behind the other leaves a single
+leg: a person only with ``single_legs``. Two legs closer than ``jump`` merge into one
+segment, up to 0.3 m wide, which is too wide for a leg: with ``single_legs`` off such a person
+is missed; the motion cue needs legs associated over frames, here by nearest neighbour.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxtrack import _checks
+
+Array = jax.Array
+
+__all__ = ["LegParams", "Segments", "SegmentFeatures", "People", "Detections", "segment",
+           "features", "leg_candidates", "pair_legs", "detect", "detect_people"]
+
+
+class LegParams(NamedTuple):
+    """Leg detector thresholds (float leaves: may be traced or vmapped).
+
+    Attributes:
+      max_range: laser maximum range; returns at or beyond it are not returns (5.6 m).
+      min_range: returns at or below this are not returns (0.02 m).
+      jump: segment break distance between consecutive returns (0.1 m).
+      min_points: fewest points of a leg segment (3).
+      min_width, max_width: leg segment width range, first to last point (0.03-0.25 m).
+      min_radius, max_radius: Kasa circle-fit radius range of a leg (0.01-0.25 m; fits on
+        3-4 noisy points are loose, hence the wide range).
+      pair_distance: largest distance between the two legs of a person (0.5 m: a walking
+        stride at shin height).
+      single_legs: 1.0 to make every unpaired leg a person (occluded other leg), 0.0 not to.
+      motion_gate: a leg's motion is its displacement from the nearest previous-frame leg
+        within this distance (0.3 m); otherwise unknown.
+      min_motion: displacements shorter than this count as standing (0.03 m).
+      max_motion_angle: two moving legs whose displacement directions differ by more than
+        this (radians) are not one person (pi / 2).
+    """
+
+    max_range: float = 5.6
+    min_range: float = 0.02
+    jump: float = 0.1
+    min_points: float = 3.0
+    min_width: float = 0.03
+    max_width: float = 0.25
+    min_radius: float = 0.01
+    max_radius: float = 0.25
+    pair_distance: float = 0.5
+    single_legs: float = 0.0
+    motion_gate: float = 0.3
+    min_motion: float = 0.03
+    max_motion_angle: float = math.pi / 2
+
+
+class Segments(NamedTuple):
+    """Output of `segment` (fixed capacity S).
+
+    Attributes:
+      labels: [B] int32 segment of each beam, -1 for invalid returns and dropped segments.
+      first, last: [S] int32 first and last beam of each segment (0 where masked).
+      num_points: [S] int32 returns per segment.
+      mask: [S] bools, which segments exist.
+      found: scalar int32, number of segments in the scan (may exceed S).
+      dropped: scalar int32, ``max(found - S, 0)``, the segments left out (the last ones in
+        beam order).
+    """
+
+    labels: Array
+    first: Array
+    last: Array
+    num_points: Array
+    mask: Array
+    found: Array
+    dropped: Array
+
+
+class SegmentFeatures(NamedTuple):
+    """Geometric features of each segment (output of `features`), sensor frame.
+
+    Attributes:
+      num_points: [S] point counts (floats).
+      width: [S] distance from the first to the last point.
+      mean: [S, 2] mean point.
+      linearity: [S] rms distance of the points to their total-least-squares line.
+      radius: [S] Kasa circle-fit radius (inf with fewer than 3 points or collinear points).
+      circle_center: [S, 2] circle-fit centre (the mean point where the fit is undefined).
+      circularity: [S] rms distance of the points to the fitted circle (inf where undefined).
+      position: [S, 2] estimated leg axis: the mean point moved away from the sensor by
+        :math:`(\\pi/4)\\,w/2` (the mean depth of a half circle of radius :math:`w/2` seen
+        from afar), less noisy than the circle centre on a few points.
+      mask: [S] bools.
+    """
+
+    num_points: Array
+    width: Array
+    mean: Array
+    linearity: Array
+    radius: Array
+    circle_center: Array
+    circularity: Array
+    position: Array
+    mask: Array
+
+
+class People(NamedTuple):
+    """Output of `pair_legs` (fixed capacity P).
+
+    Attributes:
+      xy: [P, 2] person positions (midpoint of the legs, or the single leg); 0 where masked.
+      mask: [P] bools. Pairs come first (closest pair first), then single legs.
+      legs: [P, 2] int32 leg (segment) indices, -1 where absent (second leg of a single).
+      num_legs: [P] int32, 2, 1 or 0.
+      dropped: scalar int32, people that did not fit in P.
+    """
+
+    xy: Array
+    mask: Array
+    legs: Array
+    num_legs: Array
+    dropped: Array
+
+
+class Detections(NamedTuple):
+    """Output of `detect`: people, the leg candidates (for the next frame's motion cue) and the
+    intermediate results."""
+
+    people: People
+    legs_xy: Array
+    legs_mask: Array
+    segments: Segments
+    features: SegmentFeatures
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def segment(ranges: Array, angles: Array, max_range, *, jump=0.1, min_range=0.0,
+            max_segments: int = 64) -> Segments:
+    """Split a scan into segments at range jumps and invalid returns.
+
+    Beam :math:`i` with a valid return (finite, ``min_range < r < max_range``) starts a new
+    segment when beam :math:`i - 1` has no valid return or
+    :math:`\\|p_i - p_{i-1}\\| > \\text{jump}` (:math:`p` the return points). Segments are
+    numbered in beam order; those beyond ``max_segments`` are dropped (their beams get label -1)
+    and counted.
+
+    Args:
+      ranges: [B] ranges; angles: [B] beam angles (radians, ascending).
+      max_range: scalar, readings at or beyond it are not returns.
+      jump: break distance (m); min_range: readings at or below it are not returns.
+      max_segments: static capacity S.
+
+    Returns:
+      `Segments`.
+
+    Example:
+      >>> segs = segment(ranges, angles, 5.6, jump=0.1, max_segments=32)
+    """
+    _check_scan(ranges, angles)
+    if int(max_segments) < 1:
+        raise ValueError(f"max_segments must be >= 1; got {max_segments}")
+    xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), min_range, max_range)
+    return _segment(xy, valid, jump, int(max_segments))
+
+
+def features(ranges: Array, angles: Array, segments: Segments, max_range=5.6, min_range=0.0
+             ) -> SegmentFeatures:
+    r"""Per-segment geometric features (the leg features of Arras et al. 2007, a subset).
+
+    The Kasa fit minimises :math:`\sum_i (x_i^2 + y_i^2 + D x_i + E y_i + F)^2` on coordinates
+    centred at the segment mean, so :math:`F = -\overline{x^2 + y^2}` and
+    :math:`[S_{xx}\ S_{xy};\ S_{xy}\ S_{yy}]\,(D, E)^T = -(S_{xz}, S_{yz})^T`; centre
+    :math:`(-D/2, -E/2)`, radius :math:`\sqrt{(D^2 + E^2)/4 - F}`.
+
+    Args:
+      ranges, angles: [B] the scan given to `segment`.
+      segments: `Segments`.
+      max_range, min_range: as given to `segment`.
+
+    Returns:
+      `SegmentFeatures`.
+
+    Example:
+      >>> f = features(ranges, angles, segment(ranges, angles, 5.6))
+    """
+    _check_scan(ranges, angles)
+    xy, _ = _points(jnp.asarray(ranges), jnp.asarray(angles), min_range, max_range)
+    return _features(xy, segments)
+
+
+def leg_candidates(feats: SegmentFeatures, params: LegParams = LegParams()) -> Array:
+    """Segments that look like a leg: point count, width and circle radius in range.
+
+    Returns:
+      [S] bools.
+
+    Example:
+      >>> is_leg = leg_candidates(features(ranges, angles, segs))
+    """
+    p = params
+    return (feats.mask & (feats.num_points >= p.min_points)
+            & (feats.width >= p.min_width) & (feats.width <= p.max_width)
+            & (feats.radius >= p.min_radius) & (feats.radius <= p.max_radius))
+
+
+def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(), *,
+              max_people: int = 16, prev_legs: tuple[Array, Array] | None = None) -> People:
+    """Pair legs into people (seed 004's heuristics: two legs, close, moving alike).
+
+    Greedy matching: repeatedly take the closest remaining pair of legs if it is within
+    ``pair_distance`` (and motion-compatible when ``prev_legs`` is given); each pair is a
+    person at the midpoint. With ``params.single_legs`` > 0 the remaining legs are people too.
+
+    Motion cue: with ``prev_legs = (xy [L, 2], mask [L])``, a leg's displacement is taken from
+    its nearest previous leg within ``motion_gate``; two legs that both moved more than
+    ``min_motion`` in directions more than ``max_motion_angle`` apart are not paired (a walking
+    person's stance leg barely moves, so this mostly separates legs of people who cross).
+
+    Args:
+      legs_xy: [S, 2] leg positions; legs_mask: [S] bools (e.g. `leg_candidates`).
+      params: `LegParams`.
+      max_people: static capacity P.
+      prev_legs: optional previous-frame legs, same frame of reference.
+
+    Returns:
+      `People`.
+
+    Example:
+      >>> people = pair_legs(f.position, leg_candidates(f), max_people=8)
+    """
+    _checks.check_ndim("legs_xy", legs_xy, 2, "[S, 2] leg positions")
+    S = _checks.shape_of(legs_xy)[0]
+    _checks.check_shape("legs_xy", legs_xy, (S, 2))
+    _checks.check_shape("legs_mask", legs_mask, (S,))
+    if prev_legs is not None:
+        if len(prev_legs) != 2:
+            raise ValueError("prev_legs must be (xy [L, 2], mask [L])")
+        _checks.check_ndim("prev_legs xy", prev_legs[0], 2, "[L, 2] leg positions")
+        L = _checks.shape_of(prev_legs[0])[0]
+        _checks.check_shape("prev_legs xy", prev_legs[0], (L, 2))
+        _checks.check_shape("prev_legs mask", prev_legs[1], (L,))
+    if int(max_people) < 1:
+        raise ValueError(f"max_people must be >= 1; got {max_people}")
+    return _pair(jnp.asarray(legs_xy), jnp.asarray(legs_mask, bool), params, int(max_people),
+                 prev_legs)
+
+
+def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
+           max_segments: int = 64, max_people: int = 16,
+           prev_legs: tuple[Array, Array] | None = None) -> Detections:
+    """The whole leg detector on one scan: `segment` -> `features` -> `leg_candidates` ->
+    `pair_legs`. Everything in the sensor frame.
+
+    Args:
+      ranges: [B] ranges; angles: [B] beam angles.
+      params: `LegParams`.
+      max_segments, max_people: static capacities S and P.
+      prev_legs: optional ``(legs_xy, legs_mask)`` of the previous `Detections` (expressed in
+        the current sensor frame when the robot moved) for the motion cue.
+
+    Returns:
+      `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features).
+
+    Example:
+      >>> det = detect(ranges, angles)
+      >>> det = detect(next_ranges, angles, prev_legs=(det.legs_xy, det.legs_mask))
+    """
+    _check_scan(ranges, angles)
+    for name, v in (("max_segments", max_segments), ("max_people", max_people)):
+        if int(v) < 1:
+            raise ValueError(f"{name} must be >= 1; got {v}")
+    xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
+                        params.max_range)
+    segs = _segment(xy, valid, params.jump, int(max_segments))
+    feats = _features(xy, segs)
+    legs = leg_candidates(feats, params)
+    people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)
+    return Detections(people, feats.position, legs, segs, feats)
+
+
+def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
+                  max_segments: int = 64, max_people: int = 16) -> tuple[Array, Array]:
+    """People positions from one laser scan (see `detect`).
+
+    Args:
+      ranges: [B] ranges; angles: [B] beam angles (sensor frame).
+      params: `LegParams`; max_segments, max_people: static capacities.
+
+    Returns:
+      (xy [P, 2], mask [P]) in the sensor frame.
+
+    Example:
+      >>> xy, mask = jax.jit(detect_people)(ranges, angles)
+    """
+    people = detect(ranges, angles, params, max_segments=max_segments,
+                    max_people=max_people).people
+    return people.xy, people.mask
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _points(ranges, angles, min_range, max_range):
+    valid = jnp.isfinite(ranges) & (ranges > min_range) & (ranges < max_range)
+    r = jnp.where(valid, ranges, 0.0)
+    return jnp.stack([r * jnp.cos(angles), r * jnp.sin(angles)], -1), valid
+
+
+def _segment(xy, valid, jump, S):
+    B = xy.shape[0]
+    step = xy[1:] - xy[:-1]
+    gap = jnp.sum(step * step, -1) > jnp.asarray(jump, xy.dtype) ** 2
+    prev_ok = jnp.concatenate([jnp.zeros(1, bool), valid[:-1] & ~gap])
+    start = valid & ~prev_ok
+    index = jnp.cumsum(start) - 1
+    found = jnp.sum(start).astype(jnp.int32)
+    labels = jnp.where(valid & (index < S), index, -1).astype(jnp.int32)
+    ids = jnp.where(labels >= 0, labels, S)
+    beams = jnp.arange(B, dtype=jnp.int32)
+    num = jax.ops.segment_sum(jnp.ones(B, jnp.int32), ids, S + 1)[:S]
+    mask = num > 0
+    first = jnp.where(mask, jax.ops.segment_min(beams, ids, S + 1)[:S], 0)
+    last = jnp.where(mask, jax.ops.segment_max(beams, ids, S + 1)[:S], 0)
+    return Segments(labels, first, last, num, mask, found, jnp.maximum(found - S, 0))
+
+
+def _features(xy, segs):
+    S = segs.first.shape[0]
+    dtype = xy.dtype
+    ids = jnp.where(segs.labels >= 0, segs.labels, S)
+    inside = (segs.labels >= 0)[:, None]
+
+    def total(v):
+        return jax.ops.segment_sum(jnp.where(inside if v.ndim == 2 else inside[:, 0], v, 0.0),
+                                   ids, S + 1)[:S]
+
+    n = segs.num_points.astype(dtype)
+    safe_n = jnp.maximum(n, 1.0)
+    mean = total(xy) / safe_n[:, None]
+    u = xy - mean[jnp.minimum(ids, S - 1)]
+    suu, svv, suv = total(u[:, 0] ** 2), total(u[:, 1] ** 2), total(u[:, 0] * u[:, 1])
+    z = jnp.sum(u * u, -1)
+    suz, svz, sz = total(u[:, 0] * z), total(u[:, 1] * z), total(z)
+
+    # Linearity: smallest eigenvalue of the scatter, per point.
+    half_tr, half_diff = 0.5 * (suu + svv), 0.5 * (suu - svv)
+    lam_min = half_tr - jnp.sqrt(half_diff ** 2 + suv ** 2)
+    linearity = jnp.sqrt(jnp.maximum(lam_min, 0.0) / safe_n)
+
+    # Kasa fit; undefined for < 3 points or (numerically) collinear points.
+    det = suu * svv - suv ** 2
+    fit = segs.mask & (n >= 3) & (det > 1e-6 * jnp.maximum(half_tr, 1e-30) ** 2)
+    safe_det = jnp.where(fit, det, 1.0)
+    D = -(svv * suz - suv * svz) / safe_det
+    E = -(suu * svz - suv * suz) / safe_det
+    F = -sz / safe_n
+    local = jnp.stack([-0.5 * D, -0.5 * E], -1)
+    rho_sq = 0.25 * (D * D + E * E) - F
+    fit = fit & (rho_sq > 0)
+    radius = jnp.where(fit, jnp.sqrt(jnp.where(fit, rho_sq, 1.0)), jnp.inf)
+    local = jnp.where(fit[:, None], local, 0.0)
+    resid = jnp.sqrt(jnp.sum((u - local[jnp.minimum(ids, S - 1)]) ** 2, -1)) \
+        - jnp.where(fit, radius, 0.0)[jnp.minimum(ids, S - 1)]
+    circularity = jnp.where(fit, jnp.sqrt(total(resid ** 2) / safe_n), jnp.inf)
+
+    width = jnp.linalg.norm(xy[segs.last] - xy[segs.first], axis=-1)
+    dist = jnp.linalg.norm(mean, axis=-1)
+    outward = mean / jnp.where(dist > 0, dist, 1.0)[:, None]
+    position = mean + (0.125 * math.pi) * width[:, None] * outward
+    zero = jnp.zeros_like(mean)
+    m1 = segs.mask
+    return SegmentFeatures(
+        num_points=n, width=jnp.where(m1, width, 0.0), mean=jnp.where(m1[:, None], mean, zero),
+        linearity=jnp.where(m1, linearity, 0.0), radius=radius,
+        circle_center=jnp.where(m1[:, None], mean + local, zero), circularity=circularity,
+        position=jnp.where(m1[:, None], position, zero), mask=m1)
+
+
+def _pair(xy, mask, params, P, prev_legs):
+    S = xy.shape[0]
+    dtype = xy.dtype
+    diff = xy[:, None] - xy[None]
+    dist = jnp.sqrt(jnp.sum(diff * diff, -1) + jnp.eye(S, dtype=dtype))
+    allowed = mask[:, None] & mask[None] & ~jnp.eye(S, dtype=bool) & (dist <= params.pair_distance)
+    if prev_legs is not None:
+        allowed = allowed & _motion_compatible(xy, mask, prev_legs, params)
+    cost = jnp.where(allowed, dist, jnp.inf)
+
+    # Greedy matching over all legs (at most S // 2 pairs), closest pair first.
+    def take(carry, _):
+        cost = carry
+        flat = jnp.argmin(cost)
+        i, j = flat // S, flat % S
+        ok = jnp.isfinite(cost[i, j])
+        gone = (jnp.arange(S) == i) | (jnp.arange(S) == j)
+        cost = jnp.where(ok & (gone[:, None] | gone[None]), jnp.inf, cost)
+        return cost, jnp.where(ok, jnp.stack([i, j]), -1).astype(jnp.int32)
+
+    _, pairs = lax.scan(take, cost, None, length=max(S // 2, 1))         # [S // 2, 2]
+    paired = pairs[:, 0] >= 0
+    n_pairs = jnp.sum(paired)
+    used = jnp.zeros(S + 1, bool).at[jnp.where(pairs >= 0, pairs, S).ravel()].set(True)[:S]
+    single = mask & ~used & (params.single_legs > 0)
+    n_single = jnp.sum(single)
+    # People slots: the pairs (found in order, so the first n_pairs rows), then the singles.
+    legs = jnp.full((P, 2), -1, jnp.int32)
+    rows = jnp.arange(pairs.shape[0])
+    legs = legs.at[jnp.where(paired, rows, P)].set(pairs, mode="drop")
+    slot = jnp.where(single, n_pairs + jnp.cumsum(single) - 1, P)
+    legs = legs.at[slot, 0].set(jnp.arange(S, dtype=jnp.int32), mode="drop")
+    num_legs = jnp.sum(legs >= 0, -1).astype(jnp.int32)
+    a = xy[jnp.maximum(legs[:, 0], 0)]
+    b = xy[jnp.maximum(legs[:, 1], 0)]
+    person = jnp.where((num_legs == 2)[:, None], 0.5 * (a + b), a)
+    present = num_legs > 0
+    dropped = jnp.maximum(n_pairs + n_single - P, 0).astype(jnp.int32)
+    return People(jnp.where(present[:, None], person, 0.0), present, legs, num_legs, dropped)
+
+
+def _motion_compatible(xy, mask, prev_legs, params):
+    prev_xy, prev_mask = jnp.asarray(prev_legs[0], xy.dtype), jnp.asarray(prev_legs[1], bool)
+    d = xy[:, None] - prev_xy[None]
+    dist = jnp.sqrt(jnp.sum(d * d, -1) + 1e-30)
+    dist = jnp.where(prev_mask[None], dist, jnp.inf)
+    nearest = jnp.argmin(dist, -1)
+    known = mask & (jnp.min(dist, -1) <= params.motion_gate)
+    disp = xy - prev_xy[nearest]
+    speed = jnp.sqrt(jnp.sum(disp * disp, -1) + 1e-30)
+    moving = known & (speed > params.min_motion)
+    unit = disp / speed[:, None]
+    cos = unit @ unit.T
+    return ~(moving[:, None] & moving[None]) | (cos >= jnp.cos(params.max_motion_angle))
+
+
+def _check_scan(ranges, angles):
+    _checks.check_ndim("ranges", ranges, 1, "[B] ranges")
+    B = _checks.shape_of(ranges)[0]
+    _checks.check_shape("angles", angles, (B,), "beam angles, one per range")
+    _checks.check_finite("angles", angles)
+    if _checks.is_concrete(ranges) and np.any(np.isnan(np.asarray(ranges))):
+        raise ValueError("ranges contains NaN (use max_range or inf for beams with no return)")
