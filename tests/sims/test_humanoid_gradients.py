@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sims.humanoid import gait, scene, sensor
+from jaxtrack.control import pose as control
+from sims.humanoid import episode, gait, scene, sensor
 
 F64 = jnp.float64
 
@@ -108,9 +109,6 @@ def test_short_closed_loop_gradient_matches_central_differences():
     the same loss (common random numbers) within 25 %; the propagation std's is finite (it is
     two orders smaller here, below the differences' noise). One compiled function: the
     differences use the primal outputs of the JVP at the shifted parameters."""
-    from jaxtrack.control import pose as control
-    from sims.humanoid import episode
-
     cfg = episode.EpisodeConfig(scene.build(40, 30), num_particles=16, num_frames=8,
                                 max_points=48, smooth=True, dtype=F64)
     run = jax.vmap(episode.make_episode(cfg), (0, None))
