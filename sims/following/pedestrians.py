@@ -40,7 +40,6 @@ so the sway's fundamental frequency is the stride frequency :math:`f/2` and its 
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import jax
