@@ -258,3 +258,21 @@ def test_bad_input_raises():
     with pytest.raises(ValueError, match="prev_legs"):
         legs.pair_legs(jnp.zeros((4, 2)), jnp.ones(4, bool), prev_legs=(jnp.zeros((3, 3)),
                                                                         jnp.ones(3, bool)))
+
+
+@jax.jit
+def _candidate_with_and_without_convexity(ranges, angles):
+    segs = legs.segment(ranges, angles, 5.6, max_segments=2)
+    f = legs.features(ranges, angles, segs, 5.6)
+    return jnp.stack([legs.leg_candidates(f, legs.LegParams(convex_only=c))[0]
+                      for c in (0.0, 1.0)])
+
+
+def test_convex_only_rejects_arcs_that_bulge_away_from_the_sensor():
+    # A 12 cm arc 2 m away, bulging 4 cm towards (leg-like) or away from the sensor.
+    angles = jnp.linspace(-0.03, 0.03, 9)
+    bump = 0.04 * (1.0 - (np.asarray(angles) / 0.03) ** 2)
+    keep = [np.asarray(_candidate_with_and_without_convexity(jnp.asarray(2.0 - sign * bump),
+                                                             angles)).tolist()
+            for sign in (1.0, -1.0)]
+    assert keep == [[True, True], [True, False]]

@@ -180,8 +180,11 @@ def test_gradient_is_finite_on_grazing_and_tangent_rays():
     # A beam exactly tangent to a circle and one through a segment's end point.
     circles = lidar.Circles(jnp.array([[2.0, 0.5]]), jnp.array([0.5]), jnp.array([True]))
     walls = lidar.Walls(jnp.array([[[3.0, 0.0], [3.0, -1.0]]]), jnp.array([True]))
-    g = jax.grad(lambda c: jnp.sum(lidar.cast(jnp.zeros(3), jnp.zeros(1), lidar.Circles(
-        c, circles.radii, circles.mask), walls, MAX)))(circles.centers)
+    grad = jax.jit(jax.grad(lambda c, a: jnp.sum(lidar.cast(jnp.zeros(3), a, lidar.Circles(
+        c, circles.radii, circles.mask), walls, MAX))))
+    # Tangent to the circle's bottom (y = 0), then through the wall's end point (3, 0) from
+    # below, and a beam that misses everything.
+    g = grad(circles.centers, jnp.array([0.0, -1e-9, 3.0]))
     assert np.all(np.isfinite(g))
 
 
