@@ -1,7 +1,9 @@
-"""Command line: ``jaxtrack demo`` and ``jaxtrack run humanoid-reach``.
+"""Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach`` and
+``jaxtrack run person-following``.
 
 The console command lives in `sims` so that importing `jaxtrack` never imports MuJoCo; ``demo``
-dispatches to `jaxtrack.demo.run`, ``run humanoid-reach`` to `run_humanoid_reach`.
+dispatches to `jaxtrack.demo.run`, ``run humanoid-reach`` to `run_humanoid_reach`, ``run
+person-following`` to `sims.following.report.run_person_following`.
 """
 
 from __future__ import annotations
@@ -39,6 +41,20 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--frames", type=int, default=200)
     reach.add_argument("--resolution", type=int, nargs=2, default=(80, 60),
                        metavar=("WIDTH", "HEIGHT"))
+    follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
+                               "its user among other people (laser legs + RGB-D)")
+    follow.add_argument("--episodes", type=int, default=256)
+    follow.add_argument("--estimator", choices=("pf", "gnn", "jpda", "nnjpda", "kf"),
+                        default="pf")
+    follow.add_argument("--follower", choices=("A", "B"), default="A",
+                        help="follower point: A = (1.5, 0), B = (1, 1) m in the robot frame")
+    follow.add_argument("--people", type=int, default=4, help="distractors besides the user")
+    follow.add_argument("--sensors", choices=("both", "laser", "rgbd"), default="both")
+    follow.add_argument("--duration", type=float, default=60.0, help="seconds per episode")
+    follow.add_argument("--particles", type=int, default=256)
+    follow.add_argument("--batch-size", type=int, default=None)
+    follow.add_argument("--out", type=Path, default=None, help="directory for plots and metrics")
+    follow.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     if args.command == "demo":
         if args.episodes < 1 or args.steps < 1:
@@ -46,6 +62,18 @@ def main(argv: list[str] | None = None) -> int:
         from jaxtrack import demo as demo_mod
 
         demo_mod.run(args.episodes, args.steps, args.seed)
+        return 0
+    if args.scene == "person-following":
+        if args.episodes < 1 or args.particles < 2 or args.duration <= 0:
+            parser.error("--episodes, --particles and --duration must be positive")
+        if not 0 <= args.people <= 15:
+            parser.error(f"--people must be in [0, 15] (the scene holds 16 people); got "
+                         f"{args.people}")
+        from sims.following.report import run_person_following
+
+        run_person_following(args.episodes, args.estimator, args.follower, args.people,
+                             args.out, args.seed, args.duration, args.sensors, args.particles,
+                             args.batch_size)
         return 0
     if args.episodes < 1 or args.particles < 1 or args.frames < 1:
         parser.error("--episodes, --particles and --frames must be positive")

@@ -70,6 +70,9 @@ class PeoplePFConfig:
       threshold_mode: "half_mean" or "paper" (see `clustering.dynamic_threshold`).
       threshold_floor: lower bound of the clustering threshold (m); eq. 5 gives 0 with fewer
         than two detections per sensor.
+      threshold_cap: upper bound of the clustering threshold (m); eq. 5 grows with the spread
+        of the detections, and in a room where furniture legs are detected too it reaches
+        metres and merges people standing side by side (inf reproduces the paper).
       min_cluster_weight: a cluster lighter than this is not a person estimate.
       gate: a cluster farther than this (m) from the predicted target is not the target.
       resampler: "systematic" (default, exact), "multinomial", "stratified", "stop_gradient"
@@ -85,6 +88,7 @@ class PeoplePFConfig:
     birth_fraction: float = 0.1
     threshold_mode: str = "half_mean"
     threshold_floor: float = 0.4
+    threshold_cap: float = float("inf")
     min_cluster_weight: float = 0.03
     gate: float = 1.0
     resampler: str = "systematic"
@@ -335,6 +339,7 @@ def _step(key, state, scans, robot_pose, params):
     threshold = clustering.dynamic_threshold(
         scans[0].xy, other.xy, scans[0].mask, other.mask, floor=cfg.threshold_floor,
         mode=cfg.threshold_mode)
+    threshold = jnp.minimum(threshold, cfg.threshold_cap)
     clusters = clustering.kclusterise(ps.particles, ps.log_weights, threshold, cfg.max_clusters)
     if cfg.cluster_floor > 0:
         ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)

@@ -51,6 +51,7 @@ class EstimatorConfig:
       jpda_method: "exact" or "lbp".
       appearance: use the RGB-D colour feature in the GNN cost (seed 001's online classifier).
       gate: user re-acquisition radius (m).
+      cluster_cap: largest particle-clustering distance (m), see `people_pf.PeoplePFConfig`.
       laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
     """
 
@@ -62,7 +63,8 @@ class EstimatorConfig:
     capacity: int = 10
     jpda_method: str = "exact"
     appearance: bool = False
-    gate: float = 1.0
+    gate: float = 0.7
+    cluster_cap: float = 0.6
     laser_fov: tuple = (2.094, 0.1, 5.6)
     rgbd_fov: tuple = (0.497, 0.5, 4.5)
 
@@ -94,7 +96,8 @@ class EstimatorParams(NamedTuple):
         """Natural-value defaults: laser people 0.1 m, RGB-D 0.3 m (seed 003)."""
         pf_cfg = people_pf.PeoplePFConfig(num_particles=config.num_particles,
                                           max_clusters=config.max_clusters, gate=config.gate,
-                                          resampler=config.resampler)
+                                          resampler=config.resampler,
+                                          threshold_cap=config.cluster_cap)
         pf = people_pf.PeoplePFParams.create(pf_cfg, dt=dt, q=q, std=(laser_std, rgbd_std),
                                              dtype=dtype)
         assoc = {"gnn": "gnn", "jpda": "jpda", "nnjpda": "nn_jpda"}.get(config.kind, "gnn")

@@ -1,0 +1,324 @@
+"""One closed-loop person-following episode: people walk, the robot senses, estimates, follows.
+
+Each 10 Hz frame (``control_dt``):
+
+1. the world moves: the pedestrians step (`sims.following.pedestrians`, avoiding each other and
+   the robot), and the robot applies the last command through MJX physics
+   (`sims.following.scene.robot_step`);
+2. sensing: noisy odometry integrates the robot's believed pose (the odometry frame, which
+   drifts); the laser scans the legs, furniture legs and walls (`sims.following.lidar`); the
+   leg detector finds people in the scan (`jaxtrack.perception.legs`); the RGB-D detector reports
+   noisy people with a colour feature (`sims.following.rgbd`);
+3. estimation (`sims.following.estimators`): the user's position and velocity in the odometry
+   frame (and everyone, for the multi-target estimators);
+4. control (`jaxtrack.control.follower`, seed 004 eq. 9): the follower point ``P_fm`` on the
+   estimated user, with velocity and acceleration limits and a safety stop when a laser return
+   lies in the robot's path within ``safety_margin`` of its body.
+
+Metrics (per episode; the frames are ``T = duration / control_dt``):
+
+- ``following_rms``: RMS distance between the true follower point and the true user (m);
+- ``lost_fraction``: fraction of frames the user estimate is farther than 0.5 m from the user;
+- ``user_switches``: times the person the estimate sits on (the true person within 0.5 m of
+  it, if any) changes from one person to another;
+- ``mota``, ``motp``, ``mot_switches`` (multi-target estimators; NaN otherwise): CLEAR MOT of
+  the confirmed tracks, with as ground truth the people inside the laser's field of view and range
+  and not fully occluded (some beam reaches one of their legs), threshold 0.5 m;
+- ``near_fraction``: fraction of frames any person's centre is within 0.45 m (Hall's intimate
+  zone) of the robot's body (its collision disc);
+- ``stop_fraction``: fraction of frames the safety stop held the robot.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxtrack import metrics as jmetrics
+from jaxtrack.control import follower
+from jaxtrack.perception import legs
+from sims.following import estimators, lidar, pedestrians
+from sims.following import rgbd as rgbd_mod
+from sims.following import scene as scene_mod
+
+Array = jax.Array
+
+__all__ = ["EpisodeConfig", "EpisodeParams", "make_params", "make_episode", "make_rollout",
+           "LOST_DISTANCE", "INTIMATE"]
+
+LOST_DISTANCE = 0.5
+INTIMATE = 0.45
+MOT_THRESHOLD = 0.5
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EpisodeConfig:
+    """Static episode configuration (closed over by `make_episode`).
+
+    Attributes:
+      scene: `sims.following.scene.Scene`.
+      estimator: `estimators.EstimatorConfig`.
+      distractors: people besides the user (``1 + distractors <= scene.num_people``).
+      duration: simulated seconds; control_dt: control / sensing period (s).
+      laser: `lidar.LaserConfig`; leg_params: `legs.LegParams`.
+      rgbd: `rgbd.RGBDConfig`; odometry: `rgbd.OdometryConfig`.
+      max_segments, max_laser_people: leg-detector capacities.
+      safety_margin: safety stop distance from the robot's body (m).
+      lost_timeout: after this long (s) without a measurement of the user, the controller
+        assumes the user stands still.
+      dtype: float dtype of the estimators and metrics.
+    """
+
+    scene: scene_mod.Scene
+    estimator: estimators.EstimatorConfig = estimators.EstimatorConfig()
+    distractors: int = 4
+    duration: float = 60.0
+    control_dt: float = 0.1
+    laser: lidar.LaserConfig = lidar.LaserConfig()
+    leg_params: legs.LegParams = legs.LegParams()
+    rgbd: rgbd_mod.RGBDConfig = rgbd_mod.RGBDConfig()
+    odometry: rgbd_mod.OdometryConfig = rgbd_mod.OdometryConfig()
+    max_segments: int = 48
+    max_laser_people: int = 8
+    safety_margin: float = 0.3
+    lost_timeout: float = 1.0
+    dtype: object = jnp.float32
+
+    @property
+    def num_frames(self) -> int:
+        return int(round(self.duration / self.control_dt))
+
+    def __post_init__(self):
+        if 1 + self.distractors > self.scene.num_people:
+            raise ValueError(f"{1 + self.distractors} people (user + {self.distractors} "
+                             f"distractors) exceed the scene's capacity of "
+                             f"{self.scene.num_people}")
+        if self.distractors < 0 or self.duration <= 0 or self.control_dt <= 0:
+            raise ValueError("distractors must be >= 0, duration and control_dt > 0")
+
+
+class EpisodeParams(NamedTuple):
+    """Tunable parameters: the follower's (`follower.Params`) and the estimator's."""
+
+    follower: follower.Params
+    estimator: estimators.EstimatorParams
+
+
+def make_params(config: EpisodeConfig, point="A", k1=1.0, k2=1.0, **estimator_kw
+                ) -> EpisodeParams:
+    """Default parameters: follower point ``"A"`` (1.5, 0) or ``"B"`` (1, 1), gains k1, k2.
+
+    Example:
+      >>> params = make_params(config, point="B", k1=0.8)
+    """
+    dt = config.dtype
+    fp = follower.Params.create(k1=k1, k2=k2, point=point, v_max=1.5, omega_max=2.0,
+                                a_max=1.5, alpha_max=4.0,
+                                stop_distance=config.scene.robot_radius + config.safety_margin,
+                                dtype=dt)
+    ep = estimators.EstimatorParams.create(config.estimator, dt=config.control_dt, dtype=dt,
+                                           **estimator_kw)
+    return EpisodeParams(fp, ep)
+
+
+class _Carry(NamedTuple):
+    data: object
+    people: pedestrians.PedestrianState
+    true_pose: Array
+    odom: Array
+    est: object
+    u: Array
+    prev_legs: Array
+    prev_legs_mask: Array
+    unseen: Array
+    last_id: Array
+    switches: Array
+
+
+class Frame(NamedTuple):
+    """Per-frame record of a rollout (world frame)."""
+
+    robot: Array        # [3] true robot pose
+    people: Array       # [P, 2]
+    people_mask: Array  # [P]
+    user_estimate: Array  # [2] in the world frame
+    follow_error: Array
+    lost: Array
+    visible: Array      # [P] ground truth for MOT
+    hyp_pos: Array      # [H, 2]
+    hyp_ids: Array      # [H]
+    hyp_mask: Array     # [H]
+    near: Array
+    stopped: Array
+    u: Array            # [2]
+
+
+def _rotate(theta, v):
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
+
+
+def _visible(ranges, laser_pose, leg_xy, leg_r, cfg):
+    """[P] a person is visible when the beam nearest to one of its legs reaches that leg."""
+    rel = estimators.to_frame(laser_pose, leg_xy)  # [P, 2, 2]
+    dist = jnp.sqrt(jnp.sum(rel**2, -1))
+    bearing = jnp.arctan2(rel[..., 1], rel[..., 0])
+    step = math.radians(cfg.step_deg)
+    half = 0.5 * (cfg.num_beams - 1)
+    idx = jnp.round(bearing / step + half).astype(jnp.int32)
+    inside = (idx >= 0) & (idx < cfg.num_beams) & (dist - leg_r < cfg.max_range) & (leg_r > 0)
+    r = ranges[jnp.clip(idx, 0, cfg.num_beams - 1)]
+    reached = r >= dist - leg_r - 0.05
+    return jnp.any(inside & reached, -1)
+
+
+def make_rollout(config: EpisodeConfig):
+    """Build ``rollout(key, params) -> Frame`` stacked over the T frames (for plots and tests).
+
+    Example:
+      >>> frames = jax.jit(make_rollout(config))(key, make_params(config))
+    """
+    sc = config.scene
+    P = sc.num_people
+    dtype = config.dtype
+    dt = config.control_dt
+    pcfg = scene_mod.pedestrian_config(sc, distractors=config.distractors)
+    lcfg = config.laser
+    angles = lidar.beam_angles(lcfg, dtype)
+    fc, fr = sc.furniture_circles()
+    walls = lidar.Walls(jnp.asarray(sc.wall_segments(), dtype), jnp.ones(4, bool))
+    furn = lidar.Circles(jnp.asarray(fc, dtype).reshape(-1, 2), jnp.asarray(fr, dtype),
+                         jnp.ones(len(fr), bool))
+    ecfg = config.estimator
+    substeps = max(1, round(dt / sc.dt))
+    robot_radius = sc.robot_radius
+    multi = ecfg.kind in ("gnn", "jpda", "nnjpda")
+
+    def circles_of(people):
+        p0, p1, r = pedestrians.leg_capsules(people, sc.gait)
+        sec = lidar.capsule_sections(p0.reshape(-1, 3), p1.reshape(-1, 3), r.reshape(-1),
+                                     lcfg.height)
+        return lidar.Circles(jnp.concatenate([sec.centers.astype(dtype), furn.centers]),
+                             jnp.concatenate([sec.radii.astype(dtype), furn.radii]),
+                             jnp.concatenate([sec.mask, furn.mask])), sec
+
+    def rollout(key, params: EpisodeParams):
+        k_init, k_est, k_col, k_run = jax.random.split(key, 4)
+        people = pedestrians.init(k_init, pcfg, P, dtype)
+        pose0 = pedestrians.robot_start(pcfg, people).astype(dtype)
+        data = scene_mod.reset(sc, pose0)
+        est = estimators.init(k_est, params.estimator, people.pos[0], pose0)
+        colours = jax.random.uniform(k_col, (P, 3), dtype)
+        S = config.max_segments
+        carry = _Carry(data, people, pose0, pose0, est, jnp.zeros(2, dtype),
+                       jnp.zeros((S, 2), dtype), jnp.zeros(S, bool), jnp.zeros((), dtype),
+                       jnp.int32(0), jnp.int32(0))
+
+        def frame(c: _Carry, k):
+            ks = jax.random.split(k, 6)
+            people = pedestrians.step(ks[0], pcfg, c.people, c.true_pose, dt)
+            data = scene_mod.robot_step(sc, c.data, c.u, substeps)
+            pose = scene_mod.robot_pose(data).astype(dtype)
+            # Odometry: the believed motion in the previous (believed) robot frame.
+            delta = rgbd_mod.odometry(ks[1], config.odometry, c.true_pose, pose)
+            odom = rgbd_mod.integrate(c.odom, delta)
+            # Laser and leg detection (sensor frame), into the odometry frame.
+            circles, sec = circles_of(people)
+            lpose = lidar.laser_pose(pose, lcfg)
+            ranges = lidar.scan(ks[2], lpose, circles, walls, lcfg)
+            prev = estimators.to_frame(lidar.laser_pose(odom, lcfg), c.prev_legs)
+            det = legs.detect(ranges, angles, config.leg_params, max_segments=S,
+                              max_people=config.max_laser_people,
+                              prev_legs=(prev, c.prev_legs_mask))
+            lodom = lidar.laser_pose(odom, lcfg)
+            laser_xy = estimators.from_frame(lodom, det.people.xy.astype(dtype))
+            # RGB-D detections (robot frame) into the odometry frame.
+            rd = rgbd_mod.detect(ks[3], config.rgbd, pose, people.pos, people.mask, colours)
+            rgbd_xy = estimators.from_frame(odom, rd.xy.astype(dtype))
+            detected = estimators.Detected(laser_xy, det.people.mask, rgbd_xy, rd.mask,
+                                           rd.colour.astype(dtype))
+            est, e = estimators.update(ks[4], c.est, detected, odom, delta[2] / dt,
+                                       delta[0] / dt, params.estimator)
+            # Control in the robot frame.
+            unseen = jnp.where(e.user_found, 0.0, c.unseen + dt)
+            rel = estimators.to_frame(odom, e.user[:2])
+            vel = _rotate(-odom[2], e.user[2:]) * (unseen <= config.lost_timeout)
+            pts, valid = lidar.scan_points(ranges, angles, lcfg)
+            corridor = (pts[:, 0] > 0) & (jnp.abs(pts[:, 1]) < robot_radius + 0.05)
+            obstacles = pts + jnp.asarray(lcfg.mount, dtype)
+            blocked = follower.safety_stop(jnp.zeros(3, dtype), obstacles, valid & corridor,
+                                           params.follower.stop_distance, frame="robot")
+            u = follower.control(params.follower, jnp.zeros(3, dtype), rel, vel, c.u, dt,
+                                 obstacles, valid & corridor, frame="robot", stop_mode="rotate")
+            # Metrics (world frame).
+            user = people.pos[0]
+            fp = estimators.from_frame(pose, params.follower.point)
+            err = jnp.sqrt(jnp.sum((fp - user) ** 2))
+            est_world = estimators.from_frame(pose, rel)
+            d_est = jnp.sqrt(jnp.sum((people.pos - est_world) ** 2, -1))
+            d_est = jnp.where(people.mask, d_est, jnp.inf)
+            who = jnp.argmin(d_est)
+            on = jnp.where(d_est[who] <= LOST_DISTANCE, who, -1).astype(jnp.int32)
+            switched = (on >= 0) & (c.last_id >= 0) & (on != c.last_id)
+            last_id = jnp.where(on >= 0, on, c.last_id)
+            leg_xy = sec.centers.reshape(P, 2, 2)
+            leg_r = jnp.where(sec.mask, sec.radii, 0.0).reshape(P, 2)
+            visible = _visible(ranges, lpose, leg_xy.astype(dtype), leg_r.astype(dtype), lcfg)
+            visible = visible & people.mask
+            hyp = estimators.from_frame(pose, estimators.to_frame(odom, e.people))
+            d_rob = jnp.sqrt(jnp.sum((people.pos - pose[:2]) ** 2, -1)) - robot_radius
+            near = jnp.any(people.mask & (d_rob < INTIMATE))
+            rec = Frame(pose, people.pos, people.mask, est_world, err,
+                        jnp.sqrt(jnp.sum((est_world - user) ** 2)) > LOST_DISTANCE, visible,
+                        hyp, e.people_ids, e.people_mask & multi, near, blocked, u)
+            new = _Carry(data, people, pose, odom, est, u,
+                         estimators.from_frame(lodom, det.legs_xy.astype(dtype)),
+                         det.legs_mask, unseen, last_id, c.switches + switched)
+            return new, (rec, switched)
+
+        keys = jax.random.split(k_run, config.num_frames)
+        _, (frames, switched) = jax.lax.scan(frame, carry, keys)
+        return frames, switched
+
+    return rollout
+
+
+def make_episode(config: EpisodeConfig):
+    """Build ``episode(key, params) -> metrics`` (a dict of scalars, see the module docstring)
+    for `jaxtrack.montecarlo.evaluate`.
+
+    Example:
+      >>> episode = make_episode(EpisodeConfig(scene.build()))
+      >>> m = jax.jit(episode)(jax.random.PRNGKey(0), make_params(config))
+    """
+    rollout = make_rollout(config)
+    P = config.scene.num_people
+    multi = config.estimator.kind in ("gnn", "jpda", "nnjpda")
+
+    def episode(key, params):
+        f, switched = rollout(key, params)
+        out = {
+            "following_rms": jnp.sqrt(jnp.mean(f.follow_error**2)),
+            "lost_fraction": jnp.mean(f.lost.astype(f.follow_error.dtype)),
+            "user_switches": jnp.sum(switched).astype(jnp.int32),
+            "near_fraction": jnp.mean(f.near.astype(f.follow_error.dtype)),
+            "stop_fraction": jnp.mean(f.stopped.astype(f.follow_error.dtype)),
+        }
+        if multi:
+            T = f.people.shape[0]
+            gt_ids = jnp.broadcast_to(jnp.arange(P, dtype=jnp.int32), (T, P))
+            hyp_ids = jnp.where(f.hyp_mask, f.hyp_ids, -1)
+            mot = jmetrics.clear_mot(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos,
+                                     f.hyp_mask, MOT_THRESHOLD, num_ids=P)
+            out.update(mota=mot.mota, motp=mot.motp, mot_switches=mot.num_switches)
+        else:
+            nan = jnp.asarray(jnp.nan, f.follow_error.dtype)
+            out.update(mota=nan, motp=nan, mot_switches=jnp.int32(-1))
+        return out
+
+    return episode
+
