@@ -38,7 +38,7 @@ command itself still follows the latest estimate (no added lag). ``sway_frames=1
 the instantaneous rule and criterion.
 
 Failures. With pf on the seed tasks (480 episodes) the ~5 % failures are neither timeouts
-(every episode stopped, 95 % within 140 frames), heading flips nor sway: the stop fires when the
+(every episode stopped, 95 % within 135 frames, all within 160), heading flips nor sway: the stop fires when the
 averaged estimate first enters the 5 cm / 10 deg region, where the robot creeps in at
 lambda_x * 5 cm = 5 mm/s, so the true pose is then at the threshold give or take the tracker's
 error (true distance 5.0-5.8 cm, or true heading 10.1-11.9 deg in one failure out of six).
