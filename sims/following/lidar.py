@@ -235,7 +235,7 @@ def cast(pose: Array, angles: Array, circles: Circles, walls: Walls, max_range) 
 
 def scan(key: Array, pose: Array, circles: Circles, walls: Walls,
          cfg: LaserConfig = LaserConfig()) -> Array:
-    """One noisy laser scan from a robot at ``pose``.
+    """One noisy laser scan from the laser at ``pose`` (like `cast`).
 
     Hits get :math:`\\mathcal N(0, \\sigma^2)` range noise (``cfg.noise_std``) and are clipped
     to ``[min_range, max_range]``; misses read exactly ``max_range`` (no noise, so they never
@@ -243,7 +243,8 @@ def scan(key: Array, pose: Array, circles: Circles, walls: Walls,
 
     Args:
       key: PRNG key.
-      pose: [3] *robot* pose (x, y, theta); the laser sits at ``cfg.mount`` on it.
+      pose: [3] *laser* pose (x, y, theta) in the world; for a robot pose use
+        ``laser_pose(robot_pose, cfg)``.
       circles, walls: the scene, as for `cast`.
       cfg: `LaserConfig` (static).
 
@@ -251,12 +252,12 @@ def scan(key: Array, pose: Array, circles: Circles, walls: Walls,
       [B] ranges, ``B = cfg.num_beams``.
 
     Example:
-      >>> ranges = scan(jax.random.PRNGKey(0), robot_pose, circles, walls)
+      >>> ranges = scan(jax.random.PRNGKey(0), laser_pose(robot_pose, cfg), circles, walls, cfg)
     """
     angles = beam_angles(cfg, jnp.result_type(pose, float))
     _check_scene(pose, angles, circles, walls)
     pose = jnp.asarray(pose)
-    clean = _cast(laser_pose(pose, cfg), angles, Circles(*map(jnp.asarray, circles)),
+    clean = _cast(pose, angles, Circles(*map(jnp.asarray, circles)),
                   Walls(*map(jnp.asarray, walls)), cfg.max_range)
     hit = clean < cfg.max_range
     noisy = clean + cfg.noise_std * jax.random.normal(key, clean.shape, clean.dtype)

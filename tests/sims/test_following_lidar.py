@@ -209,7 +209,8 @@ def test_scan_noise_clipping_mount_and_points():
     robot = jnp.array([0.1, 0.2, 0.7])
     angles = lidar.beam_angles(cfg)
     clean = cast(lidar.laser_pose(robot, cfg), angles, circles, walls, MAX)
-    noisy = jax.jit(lidar.scan, static_argnums=4)(jax.random.PRNGKey(0), robot, circles, walls,
+    noisy = jax.jit(lidar.scan, static_argnums=4)(jax.random.PRNGKey(0),
+                                                  lidar.laser_pose(robot, cfg), circles, walls,
                                                   cfg)
     hit = np.asarray(clean) < MAX
     np.testing.assert_array_equal(np.asarray(noisy)[~hit], MAX)
