@@ -40,7 +40,8 @@ from sims.following.pedestrians import GaitParams, PedestrianConfig, PedestrianS
 Array = jax.Array
 
 __all__ = ["Scene", "mjcf", "build", "reset", "robot_step", "robot_pose", "set_people",
-           "leg_capsules", "pedestrian_config", "furniture_layout", "unicycle_velocity"]
+           "leg_capsules", "pedestrian_config", "furniture_layout", "unicycle_velocity",
+           "kinematics"]
 
 leg_capsules = pedestrians.leg_capsules
 
@@ -96,6 +97,10 @@ class Scene:
       robot_radius: radius of the robot's collision sphere (m).
       torso_mocap: [P] mocap ids of the torsos; leg_mocap: [P, 2] of the left / right legs.
       robot_geom: id of the robot's collision sphere.
+      physics_model: the ``mjx.Model`` `robot_step` integrates: the robot alone (plus the walls
+        and furniture with contacts). The people are kinematic and, without contacts, nothing
+        else acts on the robot, so leaving them out gives the same motion for a fraction of the
+        cost (``mjx.step`` would otherwise pose 25 bodies and 70 geoms at every sub-step).
       furniture: tuple of furniture dicts (`furniture_layout`), empty without furniture.
       footprints: [F, 3] discs (x, y, radius) around each table and its chairs.
     """
@@ -112,6 +117,7 @@ class Scene:
     robot_geom: int
     furniture: tuple
     footprints: np.ndarray
+    physics_model: mjx.Model
 
     @property
     def leg_radius(self) -> float:
@@ -145,12 +151,14 @@ class Scene:
 def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: float = 0.05,
          contacts: bool = False, gait: GaitParams = GaitParams(),
          robot_size=(0.5, 0.4, 0.3), robot_radius: float = 0.3, robot_mass: float = 20.0,
-         servo_rate: float = 1000.0) -> str:
+         servo_rate: float = 1000.0, room_geoms: bool = True) -> str:
     """The scene's MJCF string (robot at the origin facing +x, people parked below the floor).
 
     Args:
       servo_rate: velocity servo gain per unit mass (1/s): ``kv`` = rate x mass (x inertia for
         the hinge). 1000/s tracks a velocity step within one 0.05 s step to 2 %.
+      room_geoms: include the floor, walls and furniture (`build`'s physics-only model leaves
+        them out when they cannot touch the robot).
       The other arguments are `build`'s.
 
     Example:
@@ -168,7 +176,9 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
     <geom name="wall_py" type="box" pos="0 {hh + t} {wz}" size="{hw} {t} {wz}" material="wall" {static}/>
     <geom name="wall_ny" type="box" pos="0 {-hh - t} {wz}" size="{hw} {t} {wz}" material="wall" {static}/>"""
     furn = []
-    if furniture:
+    if not room_geoms:
+        walls = ""
+    if furniture and room_geoms:
         for i, it in enumerate(furniture_layout(room)):
             r, h = it["leg_radius"], it["height"]
             top = 0.02
@@ -215,7 +225,7 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
     <material name="trousers" rgba="0.2 0.2 0.3 1"/>
   </asset>
   <worldbody>
-    <geom name="floor" type="plane" size="{hw + 1} {hh + 1} 0.05" material="floor"/>{walls}
+    {'<geom name="floor" type="plane" size="%g %g 0.05" material="floor"/>' % (hw + 1, hh + 1) if room_geoms else ''}{walls}
 {chr(10).join(furn)}
     <body name="robot">
       <joint name="robot_x" type="slide" axis="1 0 0"/>
@@ -274,8 +284,13 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
     legs = np.array([[model.body_mocapid[model.body(f"person{p}_{s}_leg").id] for s in "lr"]
                      for p in range(num_people)])
     items = tuple(furniture_layout((W, H))) if furniture else ()
+    physics = mujoco.MjModel.from_xml_string(
+        mjcf(0, (W, H), furniture, dt, contacts, gait, robot_size, robot_radius,
+             room_geoms=contacts))
+    assert (physics.nq, physics.nv, physics.nu) == (model.nq, model.nv, model.nu)
     return Scene(model, mx, (W, H), float(dt), int(num_people), gait, float(robot_radius),
-                 torso, legs, model.geom("robot_collision").id, items, _footprints(items))
+                 torso, legs, model.geom("robot_collision").id, items, _footprints(items),
+                 mjx.put_model(physics))
 
 
 def pedestrian_config(scene: Scene, **overrides) -> PedestrianConfig:
@@ -303,8 +318,7 @@ def set_people(scene: Scene, data: mjx.Data, people_state: PedestrianState) -> m
 
     Legs are the capsules of `leg_capsules` (body at the capsule's midpoint, local z along the
     leg); torsos are at `sims.following.pedestrians.torso_position`, turned to the heading.
-    Kinematic quantities (``xpos``, ``geom_xpos``) follow at the next ``mjx.step`` /
-    ``mjx.kinematics``.
+    Body and geom poses (``xpos``, ``geom_xpos``) follow from `kinematics`.
 
     Args:
       scene: `Scene` with capacity ``P``.
@@ -336,8 +350,7 @@ def reset(scene: Scene, robot_pose: Array, people_state: PedestrianState | None 
           dtype=None) -> mjx.Data:
     """Fresh ``mjx.Data`` with the robot at ``robot_pose`` [3] (at rest) and the people posed.
 
-    Only ``qpos`` and the mocap poses are set; body and geom poses follow at the first
-    `robot_step` (or ``mjx.kinematics``), which keeps this free of a second compiled pipeline.
+    Only ``qpos`` and the mocap poses are set; body and geom poses follow from `kinematics`.
 
     Example:
       >>> data = reset(scene, jnp.array([0.0, 0.0, 0.0]), state)
@@ -370,7 +383,10 @@ def robot_step(scene: Scene, data: mjx.Data, u: Array, substeps: int | None = No
     """Drive the robot by a unicycle command for one control period (``substeps`` MJX steps).
 
     At every sub-step the velocity actuators get `unicycle_velocity` for the current heading,
-    then ``mjx.step`` integrates (contacts with walls and furniture legs included).
+    then ``mjx.step`` integrates ``scene.physics_model`` (contacts with walls and furniture legs
+    included when the scene has them). ``qpos``, ``qvel``, ``ctrl`` and ``time`` of ``data`` are
+    updated; body and geom poses of the full scene are refreshed by `kinematics` (the laser
+    caster works on `leg_capsules` and the exported geometry and does not need them).
 
     Args:
       scene: `Scene`.
@@ -389,12 +405,28 @@ def robot_step(scene: Scene, data: mjx.Data, u: Array, substeps: int | None = No
     if n < 1:
         raise ValueError(f"substeps must be at least 1; got {substeps}")
     u = jnp.asarray(u, data.qpos.dtype)
+    phys = mjx.make_data(scene.physics_model)
+    phys = phys.replace(qpos=data.qpos.astype(phys.qpos.dtype),
+                        qvel=data.qvel.astype(phys.qvel.dtype), time=data.time)
 
     def body(d, _):
         d = d.replace(ctrl=unicycle_velocity(d.qpos[2], u, scene.dt).astype(d.ctrl.dtype))
-        return mjx.step(scene.mjx_model, d), None
+        return mjx.step(scene.physics_model, d), None
 
-    return jax.lax.scan(body, data, None, length=n)[0]
+    phys = jax.lax.scan(body, phys, None, length=n)[0]
+    return data.replace(qpos=phys.qpos.astype(data.qpos.dtype),
+                        qvel=phys.qvel.astype(data.qvel.dtype),
+                        ctrl=phys.ctrl.astype(data.ctrl.dtype), time=phys.time)
+
+
+def kinematics(scene: Scene, data: mjx.Data) -> mjx.Data:
+    """Body and geom poses of the whole scene (robot and mocap people) by ``mjx.kinematics``,
+    e.g. before ``mjx.ray`` or rendering.
+
+    Example:
+      >>> data = kinematics(scene, set_people(scene, data, state))
+    """
+    return mjx.kinematics(scene.mjx_model, data)
 
 
 def robot_pose(data: mjx.Data) -> Array:

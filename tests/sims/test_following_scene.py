@@ -40,7 +40,7 @@ def episodes(sc):
 
         (data, ped), poses = jax.lax.scan(body, (data, people),
                                           jax.random.split(key, CONTROL_STEPS))
-        return data, ped, poses
+        return scene.kinematics(sc, data), ped, poses
 
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
     people = [pd.init(k, cfg, 4, jnp.float32) for k in keys]
@@ -79,7 +79,7 @@ def test_set_people_puts_the_mocap_legs_where_leg_capsules_says(sc, episodes):
         for p in range(sc.num_people):
             for s, side in enumerate("lr"):
                 g = sc.model.geom(f"person{p}_{side}_leg").id
-                # MJX's own kinematics (inside mjx.step) of the mocap body.
+                # MJX's own kinematics of the mocap body.
                 centre = data.geom_xpos[b, g]
                 axis = data.geom_xmat[b, g].reshape(3, 3)[:, 2]
                 np.testing.assert_allclose(centre - half * axis, p0[p, s], atol=2e-5)
