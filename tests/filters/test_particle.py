@@ -316,6 +316,56 @@ def test_systematic_float32_never_selects_a_dead_last_particle_when_u_rounds_to_
     assert np.all(ancestors < num - 1), np.sum(ancestors == num - 1, axis=1)
 
 
+@functools.partial(jax.jit, static_argnames=("name", "num"))
+def _ancestors_and_uniforms(keys, log_weights, name, num):
+    """Ancestors [K, num] of resampler ``name`` and its uniforms [K, num] (``U + 0 * j`` for
+    `systematic`), assuming they are drawn as ``uniform(key, ())`` / ``uniform(key, (num,))``."""
+    resampler = getattr(particle, name)
+    dtype = log_weights.dtype
+    if name == "systematic":
+        uniforms = jax.vmap(lambda k: jnp.full((num,), jax.random.uniform(k, (), dtype)))(keys)
+    else:
+        uniforms = jax.vmap(lambda k: jax.random.uniform(k, (num,), dtype))(keys)
+    return jax.vmap(lambda k: resampler(k, log_weights, num))(keys), uniforms
+
+
+@pytest.mark.parametrize("num", [60, 35])
+@pytest.mark.parametrize("name", ["systematic", "stratified"])
+def test_offspring_count_ancestors_equal_a_cdf_search(name, num):
+    """`systematic` and `stratified` build ancestors from offspring counts, without a search;
+    in float64 they equal numpy's ``searchsorted(cdf, (U_j + j) / num, side="right")``
+    exactly, zero-weight particles (a third of them) included."""
+    rng = np.random.default_rng(11)
+    n = 60
+    w = rng.dirichlet(np.full(n, 0.5))
+    w[rng.random(n) < 1 / 3] = 0.0
+    w[[0, n - 1]] = 0.0  # dead at both ends
+    with np.errstate(divide="ignore"):
+        lw = np.log(w / w.sum())
+    keys = jax.random.split(jax.random.PRNGKey(21), 400)
+    ancestors, uniforms = (np.asarray(a) for a in
+                           _ancestors_and_uniforms(keys, jnp.asarray(lw), name, num))
+    cdf = np.cumsum(np.exp(lw))
+    cdf /= cdf[-1]
+    points = (uniforms + np.arange(num)) / num
+    reference = np.clip(np.searchsorted(cdf, points, side="right"), 0, n - 1)
+    np.testing.assert_array_equal(ancestors, reference)
+    assert np.all(w[ancestors] > 0)
+
+
+@pytest.mark.parametrize("name", ["systematic", "stratified"])
+def test_half_dead_float32_cloud_never_selects_a_dead_particle(name):
+    """1000 particles, half of them (at random) with zero weight, in float32: the pairwise
+    CDF is not exactly flat across zero weights, yet no dead particle gets a slot."""
+    rng = np.random.default_rng(12)
+    n = 1000
+    lw = rng.standard_normal(n).astype(np.float32)
+    lw[rng.random(n) < 0.5] = -np.inf
+    keys = jax.random.split(jax.random.PRNGKey(22), 200)
+    ancestors, _ = _ancestors_and_uniforms(keys, jnp.asarray(lw), name, n)
+    assert np.all(np.isfinite(lw[np.asarray(ancestors)]))
+
+
 # ---------------------------------------------------------------------------------------------
 # ESS, moments
 
@@ -656,6 +706,29 @@ def test_vmap_over_episodes_equals_loop(problem):
         np.testing.assert_allclose(batched.log_likelihood[b], single.log_likelihood, rtol=0,
                                    atol=1e-10)
         np.testing.assert_array_equal(batched.resampled[b], single.resampled)
+
+
+@jax.jit
+def _with_and_without_covs(key, init, zs, masks):
+    def run(return_covs):
+        return particle.filter(key, init, zs, transition_batch(0.0), log_likelihood_batch,
+                               masks=masks, vectorized=True, return_covs=return_covs)
+
+    return run(True), run(False)
+
+
+def test_filter_without_covs_returns_the_same_estimates(problem):
+    """``return_covs=False`` drops the covariances and nothing else: same key, same means, ESS,
+    log-likelihood increments and final set, to the last bit."""
+    p = problem
+    init = jax.tree_util.tree_map(lambda a: a[:300], p["init"])
+    masks = p["masks"].at[3].set(False)
+    full, lean = _with_and_without_covs(jax.random.PRNGKey(19), init, p["zs"], masks)
+    assert lean.covs is None and full.covs.shape == (T, 4, 4)
+    for name in ("means", "ess", "log_likelihoods", "resampled", "num_degenerate"):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(full, name), err_msg=name)
+    np.testing.assert_array_equal(lean.final.particles, full.final.particles)
+    np.testing.assert_array_equal(lean.final.log_weights, full.final.log_weights)
 
 
 def test_float32_run_agrees_with_float64(pf_runs, problem):
