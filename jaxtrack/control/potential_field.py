@@ -22,7 +22,8 @@ The robot descends the field: the minimum is where it should stand. The seed giv
 and rear covariances, and describes where the minimum lies (Fig. 3 and section IV-B): about 2 m
 in front for :math:`PI = 0`; about 45 deg, just outside the personal zone (1.2 m), for
 :math:`PI = 0.5`; in front at the border of the intimate zone (0.45 m) for :math:`PI = 1`. The
-rest is ours, chosen so that the minimum lands there and the field has no other local minimum:
+rest is ours, chosen so that the minimum lands there and the field has no other local minimum
+(checked on a 2 cm grid over 8 x 8 m by the tests):
 
 - Weights :math:`w_a = w_r = w_\parallel = w_\perp = 1` (the Gaussians are unnormalised, so a
   weight is a peak height; the seed adapts only covariances to PI, so do we).

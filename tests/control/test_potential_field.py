@@ -181,7 +181,7 @@ def test_gradients_wrt_parameters_are_finite():
     def loss(params):
         return jnp.sum(pf.potential(params, jnp.asarray(to_world(STARTS)), jnp.asarray(PERSON),
                                     0.7))
-    grads = jax.grad(loss)(PARAMS)
+    grads = jax.jit(jax.grad(loss))(PARAMS)
     for leaf in jax.tree_util.tree_leaves(grads):
         assert np.all(np.isfinite(np.asarray(leaf)))
     assert np.any(np.asarray(grads.log_parallel_var) != 0)
