@@ -31,7 +31,9 @@ around the robot (eq. 2). One `step`:
    scan (one within ``support_radius``) is raised to at least ``cluster_floor`` of the mass
    before the next resampling; unsupported clusters (a false positive's births) keep their mass
    and die out;
-6. select the target (the user): the cluster nearest to the last target estimate, within a gate.
+6. select the target (the user): the cluster nearest (Mahalanobis) to the target's prediction,
+   within a gate; the target has its own constant-velocity Kalman filter fed with the selected
+   cluster's mean and covariance (beyond the seed, whose selection procedure is "not described").
 
 Every shape is fixed (detections padded with masks), so a step jits once and vmaps over episodes.
 """
@@ -242,14 +244,24 @@ def log_likelihood(params: PeoplePFParams, positions: Array, scans: tuple[Scan, 
 
 
 def select_target(clusters: clustering.Clusters, predicted: Array, gate: float,
-                  min_weight: float) -> tuple[Array, Array]:
-    """Index of the cluster nearest to the predicted target position [2] among clusters
-    heavier than ``min_weight``, and whether it lies within ``gate`` (m)."""
-    d2 = jnp.sum((clusters.means[:, :2] - predicted) ** 2, -1)
-    ok = clusters.mask & (clusters.weights >= min_weight)
+                  min_weight: float, predicted_cov: Array | None = None
+                  ) -> tuple[Array, Array]:
+    """The cluster that is the target: among clusters heavier than ``min_weight`` and within
+    ``gate`` (m) of the predicted target position [2], the nearest one -- in Mahalanobis
+    distance under ``predicted_cov [2, 2] + cluster covariance`` when ``predicted_cov`` is
+    given, else in metres. Returns ``(index, found)``."""
+    diff = clusters.means[:, :2] - predicted
+    e2 = jnp.sum(diff**2, -1)
+    ok = clusters.mask & (clusters.weights >= min_weight) & (e2 <= gate**2)
+    if predicted_cov is None:
+        d2 = e2
+    else:
+        S = predicted_cov + clusters.covs[:, :2, :2]
+        S = S + 1e-6 * jnp.eye(2, dtype=S.dtype)
+        d2 = jnp.einsum("ki,kij,kj->k", diff, jnp.linalg.inv(S), diff)
     d2 = jnp.where(ok, d2, jnp.inf)
     idx = jnp.argmin(d2)
-    return idx, d2[idx] <= gate**2
+    return idx, jnp.isfinite(d2[idx])
 
 
 def init(key: Array, params: PeoplePFParams, target_position: Array, *, position_std=0.2,
@@ -345,9 +357,21 @@ def _step(key, state, scans, robot_pose, params):
         ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)
     pred_mean = F @ state.target_mean
     pred_cov = F @ state.target_cov @ F.T + Q.astype(dtype)
-    idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight)
-    mean = jnp.where(found, clusters.means[idx], pred_mean)
-    cov = jnp.where(found, clusters.covs[idx], pred_cov)
+    idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
+                               pred_cov[:2, :2])
+    # The target keeps its own constant-velocity Kalman filter, updated with the selected
+    # cluster's mean under the cluster's covariance: when the user brushes past someone and
+    # the two clusters merge for a few scans, the spread-out merged cluster moves the estimate
+    # little, and the velocity carries the prediction past the other person.
+    H = jnp.eye(2, 4, dtype=dtype)
+    R = clusters.covs[idx, :2, :2] + jnp.exp(2 * params.log_std[0]) * jnp.eye(2, dtype=dtype)
+    S = pred_cov[:2, :2] + R
+    K = jnp.linalg.solve(S, pred_cov[:2, :]).T
+    innov = clusters.means[idx, :2] - pred_mean[:2]
+    IKH = jnp.eye(4, dtype=dtype) - K @ H
+    post_cov = IKH @ pred_cov @ IKH.T + K @ R @ K.T
+    mean = jnp.where(found, pred_mean + K @ innov, pred_mean)
+    cov = jnp.where(found, 0.5 * (post_cov + post_cov.T), pred_cov)
     # The next births are drawn around this scan's detections (the first ``cap`` present).
     cap = state.births.shape[0]
     order = jnp.argsort(~all_mask, stable=True)[:cap]

@@ -48,7 +48,7 @@ from sims.following import scene as scene_mod
 Array = jax.Array
 
 __all__ = ["EpisodeConfig", "EpisodeParams", "make_params", "make_episode", "make_rollout",
-           "LOST_DISTANCE", "INTIMATE"]
+           "summarize", "Frame", "LOST_DISTANCE", "INTIMATE"]
 
 LOST_DISTANCE = 0.5
 INTIMATE = 0.45
@@ -287,6 +287,31 @@ def make_rollout(config: EpisodeConfig):
     return rollout
 
 
+def summarize(config: EpisodeConfig, frames: Frame, switched: Array) -> dict:
+    """Episode metrics (module docstring) from a rollout's `Frame` record."""
+    f = frames
+    dtype = f.follow_error.dtype
+    P = config.scene.num_people
+    out = {
+        "following_rms": jnp.sqrt(jnp.mean(f.follow_error**2)),
+        "lost_fraction": jnp.mean(f.lost.astype(dtype)),
+        "user_switches": jnp.sum(switched).astype(jnp.int32),
+        "near_fraction": jnp.mean(f.near.astype(dtype)),
+        "stop_fraction": jnp.mean(f.stopped.astype(dtype)),
+    }
+    if config.estimator.kind in ("gnn", "jpda", "nnjpda"):
+        T = f.people.shape[0]
+        gt_ids = jnp.broadcast_to(jnp.arange(P, dtype=jnp.int32), (T, P))
+        hyp_ids = jnp.where(f.hyp_mask, f.hyp_ids, -1)
+        mot = jmetrics.clear_mot(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos, f.hyp_mask,
+                                 MOT_THRESHOLD, num_ids=P)
+        out.update(mota=mot.mota, motp=mot.motp, mot_switches=mot.num_switches)
+    else:
+        out.update(mota=jnp.asarray(jnp.nan, dtype), motp=jnp.asarray(jnp.nan, dtype),
+                   mot_switches=jnp.int32(-1))
+    return out
+
+
 def make_episode(config: EpisodeConfig):
     """Build ``episode(key, params) -> metrics`` (a dict of scalars, see the module docstring)
     for `jaxtrack.montecarlo.evaluate`.
@@ -296,29 +321,8 @@ def make_episode(config: EpisodeConfig):
       >>> m = jax.jit(episode)(jax.random.PRNGKey(0), make_params(config))
     """
     rollout = make_rollout(config)
-    P = config.scene.num_people
-    multi = config.estimator.kind in ("gnn", "jpda", "nnjpda")
 
     def episode(key, params):
-        f, switched = rollout(key, params)
-        out = {
-            "following_rms": jnp.sqrt(jnp.mean(f.follow_error**2)),
-            "lost_fraction": jnp.mean(f.lost.astype(f.follow_error.dtype)),
-            "user_switches": jnp.sum(switched).astype(jnp.int32),
-            "near_fraction": jnp.mean(f.near.astype(f.follow_error.dtype)),
-            "stop_fraction": jnp.mean(f.stopped.astype(f.follow_error.dtype)),
-        }
-        if multi:
-            T = f.people.shape[0]
-            gt_ids = jnp.broadcast_to(jnp.arange(P, dtype=jnp.int32), (T, P))
-            hyp_ids = jnp.where(f.hyp_mask, f.hyp_ids, -1)
-            mot = jmetrics.clear_mot(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos,
-                                     f.hyp_mask, MOT_THRESHOLD, num_ids=P)
-            out.update(mota=mot.mota, motp=mot.motp, mot_switches=mot.num_switches)
-        else:
-            nan = jnp.asarray(jnp.nan, f.follow_error.dtype)
-            out.update(mota=nan, motp=nan, mot_switches=jnp.int32(-1))
-        return out
+        return summarize(config, *rollout(key, params))
 
     return episode
-
