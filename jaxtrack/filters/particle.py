@@ -295,15 +295,15 @@ def _standard(resampler):
         a = resampler(key, log_weights)
         return particles[a], jnp.full((n,), -math.log(n), log_weights.dtype)
 
-    apply_weights = None
     from_weights = _FROM_WEIGHTS.get(resampler)
-    if from_weights is not None:
-        def apply_weights(key, particles, w):
-            n = w.shape[-1]
-            a = from_weights(key, w, n)
-            return particles[a], jnp.full((n,), -math.log(n), w.dtype)
 
-    return Resampling(apply, getattr(resampler, "__name__", "custom"), apply_weights)
+    def apply_weights(key, particles, w):
+        n = w.shape[-1]
+        a = from_weights(key, w, n)
+        return particles[a], jnp.full((n,), -math.log(n), w.dtype)
+
+    return Resampling(apply, getattr(resampler, "__name__", "custom"),
+                      None if from_weights is None else apply_weights)
 
 
 def stop_gradient_resampling(resampler: Callable = systematic) -> Resampling:
