@@ -14,10 +14,13 @@ How each library runs:
   ess_threshold=1.0, vectorized=True)`` with vectorized user functions (one batched normal draw
   per step for all particles), float32. N = 1 is ``jit(filter)``, N > 1 ``jit(vmap(filter))``.
   Its result: weighted means and covariances, ESS, log-likelihood increments at every step.
+- jaxtrack (no covs): the same call with ``return_covs=False`` (means, ESS and log-likelihood
+  increments at every step; the covariances are not computed).
 - jax (hand-written): a minimal bootstrap filter in a ``lax.scan`` (always resample with
   ``searchsorted(method="scan")``, one normal draw, log-likelihood, logsumexp, weighted mean):
-  what the hardware allows, without jaxtrack's adaptive-resampling selects, degenerate-step
-  guards and covariance output. float32, jit / jit(vmap).
+  the textbook filter without jaxtrack's adaptive-resampling selects, degenerate-step guards
+  and covariance output (jaxtrack's search-free resampler makes it the faster of the two).
+  float32, jit / jit(vmap).
 - cuthbert: ``cuthbert.smc.particle_filter.build_filter`` (per-particle ``propagate_sample`` and
   ``log_potential``, vmapped by cuthbert, one key per particle per step) with
   ``cuthbertlib.resampling.systematic.resampling`` (resamples at every step), run by
@@ -39,6 +42,11 @@ How each library runs:
 
 The Python libraries run one episode at a time; at N > 1 only ``--python-episodes`` episodes
 are timed and the time is per episode-step (notes column).
+
+PRNG: every JAX library draws from ``jax.random.key(seed, impl=--prng)``, threefry2x32 (JAX's
+default) unless ``--prng rbg`` or ``--prng unsafe_rbg`` is given; the key type flows into the
+user's transition, so all JAX rows of one run use the same generator. On XLA:CPU the
+``rbg`` generators are slower than threefry for normal draws (see the README).
 
 Timing, single core, table: as in ``filters.py`` (see ``_common.time_interleaved``): warm-up
 call (its extra time = "first call s", tracing + compilation), then the median over clean
@@ -145,7 +153,7 @@ def gaussian_loglik_fn(R, dtype):
 # (jit / jit(vmap) by the caller) and ``loglik(out)`` extracting the log-likelihood estimate.
 
 
-def jaxtrack_pf(p, dtype=jnp.float32):
+def jaxtrack_pf(p, dtype=jnp.float32, return_covs=True):
     F, LQ = jnp.asarray(p["F"], dtype), jnp.asarray(p["LQ"], dtype)
     loglik_fn = gaussian_loglik_fn(p["R"], dtype)
 
@@ -156,9 +164,13 @@ def jaxtrack_pf(p, dtype=jnp.float32):
         n = x0.shape[0]
         init = particle.ParticleSet(x0, jnp.full((n,), -math.log(n), x0.dtype))
         return particle.filter(key, init, zs, transition, loglik_fn, resampler="systematic",
-                               ess_threshold=1.0, vectorized=True)
+                               ess_threshold=1.0, vectorized=True, return_covs=return_covs)
 
     return run, lambda out: out.log_likelihood
+
+
+def jaxtrack_no_covs_pf(p, dtype=jnp.float32):
+    return jaxtrack_pf(p, dtype, return_covs=False)
 
 
 def handwritten_pf(p, dtype=jnp.float32):
@@ -375,7 +387,8 @@ class Row:
         return self.timing.cpu_per_step_us(self.timed_episodes, self.timed_steps)
 
 
-JAX_IMPLS = [("jaxtrack", jaxtrack_pf), ("jax (hand-written)", handwritten_pf),
+JAX_IMPLS = [("jaxtrack", jaxtrack_pf), ("jaxtrack (no covs)", jaxtrack_no_covs_pf),
+             ("jax (hand-written)", handwritten_pf),
              ("cuthbert", cuthbert_pf), ("cuthbert*", cuthbert_no_callback_pf)]
 
 
@@ -394,7 +407,7 @@ def run_case(p, episodes, args, rows, skip):
     batched = episodes > 1
     print(f"\n[N={episodes}, T={args.steps}, {args.particles} particles] ...", flush=True)
     calls, meta, compiled = {}, {}, []
-    key = jax.random.key(1)
+    key = jax.random.key(1, impl=args.prng)
     for name, factory in JAX_IMPLS:
         if name in skip:
             continue
@@ -405,6 +418,10 @@ def run_case(p, episodes, args, rows, skip):
             note += "; host callback resampler"
         if name == "cuthbert*":
             note += "; resampling_fn without the callback"
+        if name == "jaxtrack (no covs)":
+            note += "; return_covs=False"
+        if args.prng != "threefry2x32":
+            note += f"; {args.prng} keys"
         meta[name] = (episodes, args.steps, note)
     timed_e = min(episodes, args.python_episodes)
     py_note = "f64 numpy, Python loop" + (f"; timed {timed_e} of {episodes} episodes"
@@ -488,11 +505,12 @@ def agreement(p, args, skip):
 
     one = episode0(0)
     results = {}  # name -> (log-likelihoods [R], means [R, T, 4])
-    keys = jax.random.split(jax.random.key(123), jax_runs)
+    keys = jax.random.split(jax.random.key(123, impl=args.prng), jax_runs)
     x0 = jnp.asarray(x0s, jnp.float32)
     zs = jnp.broadcast_to(jnp.asarray(p["zs"][0], jnp.float32), (jax_runs,) + p["zs"].shape[1:])
     for name, factory in JAX_IMPLS:
-        if name in skip:
+        # the no-covs run gives the same estimates as jaxtrack's bit for bit (tested)
+        if name in skip or name == "jaxtrack (no covs)":
             continue
         run, _ = factory(one)
         ll, means = jax_summary(name, jax.jit(jax.vmap(run))(keys, x0, zs))
@@ -553,9 +571,13 @@ def parse_args(argv=None):
                     help="seeds per numpy library in the agreement check (default 20; JAX "
                          "libraries 5x as many, Stone Soup half)")
     ap.add_argument("--skip", default="",
-                    help="comma-separated libraries to leave out (jaxtrack, "
-                         "'jax (hand-written)', cuthbert, cuthbert*, particles, filterpy, "
-                         "stonesoup)")
+                    help="comma-separated libraries to leave out (jaxtrack, 'jaxtrack (no "
+                         "covs)', 'jax (hand-written)', cuthbert, cuthbert*, particles, "
+                         "filterpy, stonesoup)")
+    ap.add_argument("--prng", default="threefry2x32",
+                    choices=["threefry2x32", "rbg", "unsafe_rbg"],
+                    help="jax.random key implementation of every JAX library (default "
+                         "threefry2x32, JAX's default)")
     ap.add_argument("--no-check", action="store_true", help="skip the agreement check")
     ap.add_argument("--no-pin", action="store_true",
                     help="do not restrict the process to one CPU (read before jax starts)")
@@ -582,7 +604,7 @@ def main(argv=None):
     header.append(f"problem: bootstrap PF, {args.particles} particles, 4-state CV (dt {DT}, "
                   f"q {CV_Q}), 2-D position (std {R_STD[0]}/{R_STD[1]} m, rho {R_RHO}); "
                   f"N = 1 and {args.episodes} episodes x T = {args.steps} steps; systematic "
-                  f"resampling every step")
+                  f"resampling every step; JAX PRNG {args.prng}")
     print("\n".join(header), flush=True)
 
     p = make_problem(args.episodes, args.steps, args.particles)
