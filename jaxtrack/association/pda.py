@@ -15,10 +15,12 @@ When every detection has the same noise :math:`R` (one gain :math:`K`), this is 
 classical combined-innovation update :math:`m^+ = m + K \nu`, :math:`\nu = \sum_j \beta_j
 \nu_j`, :math:`P^+ = \beta_0 P + (1 - \beta_0) P^c + K (\sum_j \beta_j \nu_j \nu_j^T - \nu
 \nu^T) K^T`, with the last term the spread of the innovations. With several sensors
-(heterogeneous :math:`R_j`, seed 003: 0.1 / 0.3 / 0.2 m) each detection keeps its own
-:math:`S_j = H P H^T + R_j` and gain :math:`K_j` in one fused step; this is the same mixture
+(heterogeneous :math:`R_s`, seed 003: 0.1 / 0.3 / 0.2 m) each detection keeps its sensor's
+:math:`S_s = H P H^T + R_s` and gain :math:`K_s` in one fused step; this is the same mixture
 reduction, not a sequential per-sensor approximation, so the result does not depend on the order
-of the sensors.
+of the sensors. Since :math:`S`, :math:`K` and the component covariances depend on the sensor
+only, a track costs one gain and one Joseph update per sensor plus innovation-weighted sums over
+its detections, not a Kalman update per detection.
 """
 
 from __future__ import annotations
@@ -142,6 +144,15 @@ def nn_update(states: Gaussian, zs: Array, col_for_row: Array, H: Array, R: Arra
 
 @jax.jit
 def _pda_update(state, zs, beta_row, H, R, sensor, meas_mask):
+    r"""Mixture reduction with one gain per sensor (module docstring).
+
+    The component means are :math:`m_j = m + K_{s(j)} \nu_j` and the component covariances
+    :math:`P_s` (Joseph form) depend only on the sensor, so the moments need S gains and
+    Joseph updates per track plus [M, n] weighted sums, not M Kalman updates:
+    :math:`P^+ = \beta_0 P + \sum_s B_s P_s + \sum_j \beta_j (d_j - \bar d)(d_j - \bar d)^T
+    + \beta_0 \bar d \bar d^T` with :math:`d_j = K_{s(j)} \nu_j`, :math:`\bar d = \sum_j
+    \beta_j d_j` and :math:`B_s` the weight of sensor s (every term positive semi-definite).
+    """
     M = zs.shape[0]
     dtype = jnp.result_type(state.mean, state.cov, zs, H, R, beta_row)
     mean, cov = jnp.asarray(state.mean, dtype), jnp.asarray(state.cov, dtype)
@@ -158,17 +169,29 @@ def _pda_update(state, zs, beta_row, H, R, sensor, meas_mask):
     w0 = jnp.where(empty, 1.0, w0 / jnp.where(empty, 1.0, total))
     if M == 0:
         return Gaussian(mean, cov)
-    z_hat = H @ mean
-    zs = jnp.where(valid[:, None], zs, z_hat)            # masked NaN never reaches arithmetic
-    Rj = _detections.noise_per_detection(jnp.asarray(R, dtype), sensor, M)
-    prior = Gaussian(mean, cov)
-    comps, _ = jax.vmap(lambda z, r: kalman.condition(prior, z, z_hat, H, r, None))(zs, Rj)
-    new_mean = w0 * mean + w @ comps.mean
-    d0 = mean - new_mean
-    dj = comps.mean - new_mean
-    new_cov = (w0 * (cov + jnp.outer(d0, d0))
-               + jnp.einsum("j,jab->ab", w, comps.cov + dj[:, :, None] * dj[:, None, :]))
-    return Gaussian(new_mean, _linalg.symmetrize(new_cov))
+    R = jnp.asarray(R, dtype)
+    Rs = R[None] if R.ndim == 2 else R                               # [S, m, m]
+    num_sensors = Rs.shape[0]
+    innovation = jnp.where(valid[:, None], zs - H @ mean, 0.0)        # masked NaN never enters
+    PHt = cov @ H.T
+    S = _linalg.symmetrize(H @ PHt + Rs)
+    gain = jnp.swapaxes(_linalg.cho_solve(_linalg.cholesky(S), jnp.broadcast_to(
+        PHt.T, S.shape[:1] + PHt.T.shape)), -1, -2)                    # [S, n, m]
+    I_KH = jnp.eye(cov.shape[-1], dtype=dtype) - gain @ H
+    cov_s = I_KH @ cov @ jnp.swapaxes(I_KH, -1, -2) + gain @ Rs @ jnp.swapaxes(gain, -1, -2)
+    if num_sensors == 1:
+        d = innovation @ gain[0].T                                    # [M, n]
+        sensor_weight = jnp.sum(w)[None]
+    else:
+        onehot = (jnp.asarray(sensor)[:, None] == jnp.arange(num_sensors)).astype(dtype)
+        d = jnp.einsum("js,snm,jm->jn", onehot, gain, innovation)
+        sensor_weight = w @ onehot
+    d_bar = w @ d
+    dc = d - d_bar
+    new_cov = (w0 * (cov + jnp.outer(d_bar, d_bar))
+               + jnp.einsum("s,sab->ab", sensor_weight, cov_s)
+               + jnp.einsum("j,ja,jb->ab", w, dc, dc))
+    return Gaussian(mean + d_bar, _linalg.symmetrize(new_cov))
 
 
 @jax.jit

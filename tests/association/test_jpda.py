@@ -480,3 +480,82 @@ def test_bad_inputs_are_clear_errors_at_the_boundary():
         association.jpda_marginals(np.ones(3), 0.9, 1.0)
     with pytest.raises(ValueError, match="unknown method"):
         association.nn_jpda(np.ones((2, 3)) / 3, method="argmax")
+
+
+# ---------------------------------------------------------------------------------------------
+# Clustered evaluation by size class, LBP tolerance
+
+
+def _size_class_problem(rng, with_large):
+    """16 tracks, 20 detections (3 gated by nobody): clusters of 6, 5, 2, 1, 1 and 1 tracks
+    (the 6- and 5-track clusters are chains, so that brute force stays small) or only 1-track
+    clusters; returns L [K, M], pd [K], lam [M] and the brute-force reference [K, M + 1]."""
+    K, M = 16, 20
+    blocks = ([(range(0, 6), range(0, 4)), (range(6, 11), range(4, 11)),
+               (range(11, 13), range(11, 14)), (range(13, 14), range(14, 16)),
+               (range(14, 15), range(16, 17)), (range(15, 16), [])] if with_large else
+              [(range(t, t + 1), range(t, t + 1)) for t in range(16)])
+    pd, lam = rng.uniform(0.5, 0.95, K), rng.uniform(0.1, 2.0, M)
+    L, ref = np.zeros((K, M)), np.zeros((K, M + 1))
+    for tracks, dets in blocks:
+        tracks, dets = list(tracks), list(dets)
+        k, m = len(tracks), len(dets)
+        block = rng.exponential(size=(k, m)) + 0.05
+        if k > 2:                 # a chain: track i gates detections i - 1 .. i + 1 (scaled)
+            t_i = np.arange(k)[:, None] * (m - 1) / max(k - 1, 1)
+            block *= np.abs(np.arange(m)[None, :] - t_i) <= 1.0
+        L[np.ix_(tracks, dets)] = block
+        if m:
+            b = brute_force_marginals(block, pd[tracks], lam[dets])
+            ref[np.ix_(tracks, dets)], ref[tracks, M] = b[:, :-1], b[:, -1]
+        else:
+            ref[tracks, M] = 1.0
+    pt, pm = rng.permutation(K), rng.permutation(M)
+    return L[pt][:, pm], pd[pt], lam[pm], np.concatenate([ref[pt][:, pm], ref[pt][:, M:]], 1)
+
+
+_by_size = jax.jit(jax.vmap(lambda L, pd, lam: association.jpda_marginals(
+    L, pd, lam, max_cluster_tracks=6, return_info=True)))
+
+
+def test_every_size_class_is_exact_under_vmap_with_mixed_batches():
+    """Clusters of 1, 2, 5 and 6 tracks (closed forms and the DP class 5-6, more detections
+    than one DP chunk) next to a problem of 1-track clusters only: every problem equals brute
+    force (float64, 1e-12; float32 of the same code: test_float32_and_log_likelihood_inputs)."""
+    rng = np.random.default_rng(21)
+    problems = [_size_class_problem(rng, big) for big in (True, False, True)]
+    L, pd, lam, ref = (np.stack(x) for x in zip(*problems))
+    beta, info = _by_size(L, pd, lam)
+    np.testing.assert_allclose(np.asarray(beta), ref, atol=1e-12)
+    assert np.asarray(info.cluster_size).max(-1).tolist() == [6, 1, 6]
+    assert not np.asarray(info.approximate).any()
+
+
+def test_exact_derivatives_below_the_cap_agree_in_forward_and_reverse_mode():
+    rng = np.random.default_rng(22)
+    L = rng.exponential(size=(4, 5)) * (rng.uniform(size=(4, 5)) < 0.6)
+    L[:, 0] = 0.7                                       # one cluster of all four tracks
+
+    def f(L):
+        return association.jpda_marginals(L, 0.8, 0.3)
+
+    rev = np.asarray(jax.jit(jax.jacrev(f))(jnp.asarray(L)))
+    fwd = np.asarray(jax.jit(jax.jacfwd(f))(jnp.asarray(L)))
+    np.testing.assert_allclose(rev, fwd, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(f(L)), brute_force_marginals(L, 0.8, 0.3), atol=1e-12)
+
+
+def test_lbp_tolerance_follows_the_dtype():
+    """A loopy problem: in float32 the default and a tolerance finer than float32 resolves
+    both stop before the iteration cap and agree with float64 LBP."""
+    rng = np.random.default_rng(23)
+    L = rng.exponential(size=(5, 5)) + 0.1                  # fully gated: many cycles
+    ref = np.asarray(association.jpda_marginals(L, 0.9, 0.2, method="lbp", lbp_tol=1e-12))
+    L32 = jnp.asarray(L, jnp.float32)
+    for tol in ("auto", 1e-12):
+        beta, info = association.jpda_marginals(L32, 0.9, 0.2, method="lbp", lbp_tol=tol,
+                                                lbp_max_iter=500, return_info=True)
+        assert bool(info.lbp_converged) and int(info.lbp_iterations) < 500
+        np.testing.assert_allclose(np.asarray(beta), ref, atol=1e-4)
+    with pytest.raises(ValueError, match="lbp_tol"):
+        association.jpda_marginals(L, 0.9, 0.2, method="lbp", lbp_tol="tight")
