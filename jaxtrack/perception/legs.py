@@ -426,32 +426,42 @@ def _pair(xy, mask, params, P, prev_legs):
     if prev_legs is not None:
         allowed = allowed & _motion_compatible(xy, mask, prev_legs, params)
     cost = jnp.where(allowed, dist, jnp.inf)
+    legs_idx = jnp.arange(S, dtype=jnp.int32)
 
-    # Greedy matching over all legs (at most S // 2 pairs), closest pair first.
-    def take(carry, _):
-        cost = carry
-        flat = jnp.argmin(cost)
-        i, j = flat // S, flat % S
-        ok = jnp.isfinite(cost[i, j])
-        gone = (jnp.arange(S) == i) | (jnp.arange(S) == j)
-        cost = jnp.where(ok & (gone[:, None] | gone[None]), jnp.inf, cost)
-        return cost, jnp.where(ok, jnp.stack([i, j]), -1).astype(jnp.int32)
+    # Greedy matching (closest pair first, ties to the lowest flat index i * S + j) without a
+    # sequential scan: under the strict order (distance, row, column) of the cost matrix, the
+    # greedy choice's pairs are exactly the mutual nearest neighbours among the free legs; every
+    # round matches all of them at once and frees the rest for the next round.
+    def round_(state):
+        free, partner, pair_dist, _ = state
+        c = jnp.where(free[:, None] & free[None], cost, jnp.inf)
+        best = jnp.min(c, 1)
+        nearest = jnp.min(jnp.where(c == best[:, None], legs_idx[None], S), 1)
+        onehot = (legs_idx[None] == nearest[:, None]) & jnp.isfinite(best)[:, None]
+        mutual = jnp.any(onehot & (nearest[None] == legs_idx[:, None]), 1)
+        return (free & ~mutual, jnp.where(mutual, nearest, partner),
+                jnp.where(mutual, best, pair_dist), jnp.any(mutual))
 
-    _, pairs = lax.scan(take, cost, None, length=max(S // 2, 1))         # [S // 2, 2]
-    paired = pairs[:, 0] >= 0
+    init = (mask, jnp.full(S, -1, jnp.int32), jnp.full(S, jnp.inf, dtype), jnp.array(True))
+    _, partner, pair_dist, _ = lax.while_loop(lambda s: s[3], round_, init)
+    paired = partner > legs_idx                                   # the lower leg of each pair
     n_pairs = jnp.sum(paired)
-    used = jnp.zeros(S + 1, bool).at[jnp.where(pairs >= 0, pairs, S).ravel()].set(True)[:S]
-    single = mask & ~used & (params.single_legs > 0)
+    # Greedy order of the pairs: by distance, then by lower leg index.
+    earlier = paired[None] & ((pair_dist[None] < pair_dist[:, None])
+                              | ((pair_dist[None] == pair_dist[:, None])
+                                 & (legs_idx[None] < legs_idx[:, None])))
+    rank = jnp.sum(earlier, 1)
+    single = mask & (partner < 0) & (params.single_legs > 0)
     n_single = jnp.sum(single)
-    # People slots: the pairs (found in order, so the first n_pairs rows), then the singles.
-    legs = jnp.full((P, 2), -1, jnp.int32)
-    rows = jnp.arange(pairs.shape[0])
-    legs = legs.at[jnp.where(paired, rows, P)].set(pairs, mode="drop")
-    slot = jnp.where(single, n_pairs + jnp.cumsum(single) - 1, P)
-    legs = legs.at[slot, 0].set(jnp.arange(S, dtype=jnp.int32), mode="drop")
+    # People slots: the pairs (closest first), then the singles in leg order.
+    slot = jnp.where(paired, rank, jnp.where(single, n_pairs + jnp.cumsum(single) - 1, -1))
+    at = slot[None] == jnp.arange(P)[:, None]                      # [P, S]
+    first = jnp.max(jnp.where(at, legs_idx[None], -1), 1)
+    second = jnp.max(jnp.where(at & paired[None], partner[None], -1), 1)
+    legs = jnp.stack([first, second], -1).astype(jnp.int32)
     num_legs = jnp.sum(legs >= 0, -1).astype(jnp.int32)
-    a = xy[jnp.maximum(legs[:, 0], 0)]
-    b = xy[jnp.maximum(legs[:, 1], 0)]
+    a = xy[jnp.maximum(first, 0)]
+    b = xy[jnp.maximum(second, 0)]
     person = jnp.where((num_legs == 2)[:, None], 0.5 * (a + b), a)
     present = num_legs > 0
     dropped = jnp.maximum(n_pairs + n_single - P, 0).astype(jnp.int32)
@@ -463,9 +473,13 @@ def _motion_compatible(xy, mask, prev_legs, params):
     d = xy[:, None] - prev_xy[None]
     dist = jnp.sqrt(jnp.sum(d * d, -1) + 1e-30)
     dist = jnp.where(prev_mask[None], dist, jnp.inf)
-    nearest = jnp.argmin(dist, -1)
-    known = mask & (jnp.min(dist, -1) <= params.motion_gate)
-    disp = xy - prev_xy[nearest]
+    # Nearest previous leg (first on ties, as argmin) by a one-hot row: no gather under vmap.
+    best = jnp.min(dist, -1)
+    prev_idx = jnp.arange(prev_xy.shape[0])
+    nearest = jnp.min(jnp.where(dist == best[:, None], prev_idx[None], prev_xy.shape[0]), -1)
+    onehot = (prev_idx[None] == nearest[:, None]).astype(xy.dtype)
+    known = mask & (best <= params.motion_gate)
+    disp = xy - onehot @ jnp.where(prev_mask[:, None], prev_xy, 0.0)
     speed = jnp.sqrt(jnp.sum(disp * disp, -1) + 1e-30)
     moving = known & (speed > params.min_motion)
     unit = disp / speed[:, None]

@@ -276,3 +276,47 @@ def test_convex_only_rejects_arcs_that_bulge_away_from_the_sensor():
                                                              angles)).tolist()
             for sign in (1.0, -1.0)]
     assert keep == [[True, True], [True, False]]
+
+
+def _greedy_reference(xy, mask, pair_distance, single_legs, max_people):
+    """Seed 004's pairing as a plain loop: take the closest allowed pair (lowest i, then j on
+    ties), remove both legs, repeat; then the unpaired legs in index order."""
+    n = len(xy)
+    free = list(np.flatnonzero(mask))
+    pairs = []
+    while True:
+        best = None
+        for i in free:
+            for j in free:
+                if i < j:
+                    d = np.sqrt(np.sum((xy[i] - xy[j]) ** 2))
+                    if d <= pair_distance and (best is None or d < best[0]):
+                        best = (d, i, j)
+        if best is None:
+            break
+        pairs.append([best[1], best[2]])
+        free = [k for k in free if k not in best[1:]]
+    people = pairs + ([[k, -1] for k in range(n) if k in free] if single_legs else [])
+    legs_out = np.full((max_people, 2), -1)
+    legs_out[:min(len(people), max_people)] = people[:max_people]
+    return legs_out, max(len(people) - max_people, 0)
+
+
+_pair_batch = jax.jit(jax.vmap(lambda xy, mask, single: legs.pair_legs(
+    xy, mask, legs.LegParams(single_legs=single), max_people=5)))
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_pairing_matches_a_plain_greedy_loop_including_ties(dtype):
+    rng = np.random.default_rng(3)
+    n = 64
+    xy = rng.uniform(0.0, 1.2, (n, 10, 2))
+    xy[::2] = np.round(xy[::2] * 4) / 4          # grid points: many equal distances
+    xy = xy.astype(dtype)
+    mask = rng.random((n, 10)) < 0.8
+    single = (np.arange(n) % 2).astype(dtype)
+    people = _pair_batch(jnp.asarray(xy), jnp.asarray(mask), jnp.asarray(single))
+    for k in range(n):
+        ref, dropped = _greedy_reference(xy[k], mask[k], 0.5, single[k] > 0, 5)
+        np.testing.assert_array_equal(people.legs[k], ref)
+        assert int(people.dropped[k]) == dropped
