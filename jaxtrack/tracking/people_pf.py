@@ -45,11 +45,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import logsumexp
 
 from jaxtrack import _checks
-from jaxtrack.angles import wrap
-from jaxtrack.filters import particle
+from jaxtrack.filters import _linalg, particle
 from jaxtrack.models import motion
 from jaxtrack.tracking import clustering
 
@@ -205,15 +203,27 @@ class PeoplePFState(NamedTuple):
     birth_mask: Array
 
 
+def _inv2(S):
+    """Closed-form inverse of [..., 2, 2] matrices (LAPACK calls on tiny batched matrices are
+    slow on the CPU)."""
+    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+    det = a * d - b * c
+    inv = jnp.stack([jnp.stack([d, -b], -1), jnp.stack([-c, a], -1)], -2)
+    return inv / det[..., None, None]
+
+
 def field_of_view(xy: Array, robot_pose: Array, fov: Array, softness: float = 0.05) -> Array:
     """Smooth indicator [..] in [0, 1] that points ``xy [..., 2]`` lie in a sensor's field of
     view ``fov = (half_angle, min_range, max_range)`` at ``robot_pose = (x, y, theta)``:
-    a product of sigmoids of width ``softness`` on bearing and range."""
+    a product of sigmoids of width ``softness`` on range, and on the cosine of the bearing (with
+    width ``softness * sin(half_angle)``, i.e. about ``softness`` radians at the edge; no
+    arctan2 per particle)."""
     d = xy - robot_pose[:2]
     rng = jnp.sqrt(jnp.sum(d**2, -1) + 1e-12)
-    bearing = wrap(jnp.arctan2(d[..., 1], d[..., 0]) - robot_pose[2])
+    cos_b = (d[..., 0] * jnp.cos(robot_pose[2]) + d[..., 1] * jnp.sin(robot_pose[2])) / rng
+    width = softness * jnp.maximum(jnp.sin(fov[0]), 0.05)
     s = jax.nn.sigmoid
-    return (s((fov[0] - jnp.abs(bearing)) / softness) * s((rng - fov[1]) / softness)
+    return (s((cos_b - jnp.cos(fov[0])) / width) * s((rng - fov[1]) / softness)
             * s((fov[2] - rng) / softness))
 
 
@@ -234,12 +244,12 @@ def log_likelihood(params: PeoplePFParams, positions: Array, scans: tuple[Scan, 
     for s, scan in enumerate(scans):
         var = jnp.exp(2 * params.log_std[s])
         d2 = jnp.sum((positions[:, None, :] - scan.xy[None, :, :]) ** 2, -1)  # [N, M]
-        log_n = -0.5 * d2 / var - jnp.log(2 * jnp.pi * var) - params.log_clutter_density[s]
-        log_n = jnp.where(scan.mask[None, :], log_n, -jnp.inf)
+        # Linear space: the sum is added to 1 - pd f >= 1 - pd > 0, so underflow is harmless.
+        scale = jnp.exp(-params.log_clutter_density[s]) / (2 * jnp.pi * var)
+        dens = scale * jnp.sum(jnp.where(scan.mask[None, :], jnp.exp(-0.5 * d2 / var), 0.0), 1)
         pd = jax.nn.sigmoid(params.logit_p_detect[s]) * field_of_view(
             positions, robot_pose, scan.fov, params.config.fov_softness)
-        terms = jnp.concatenate([jnp.log1p(-pd)[:, None], jnp.log(pd)[:, None] + log_n], 1)
-        total = total + logsumexp(terms, axis=1)
+        total = total + jnp.log1p(pd * (dens - 1.0))
     return total
 
 
@@ -258,7 +268,7 @@ def select_target(clusters: clustering.Clusters, predicted: Array, gate: float,
     else:
         S = predicted_cov + clusters.covs[:, :2, :2]
         S = S + 1e-6 * jnp.eye(2, dtype=S.dtype)
-        d2 = jnp.einsum("ki,kij,kj->k", diff, jnp.linalg.inv(S), diff)
+        d2 = jnp.einsum("ki,kij,kj->k", diff, _inv2(S), diff)
     d2 = jnp.where(ok, d2, jnp.inf)
     idx = jnp.argmin(d2)
     return idx, jnp.isfinite(d2[idx])
@@ -322,7 +332,7 @@ def _step(key, state, scans, robot_pose, params):
     scans = tuple(Scan(jnp.asarray(s.xy, dtype), jnp.asarray(s.mask, bool),
                        jnp.asarray(s.fov, dtype)) for s in scans)
     F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
-    chol_q = jnp.linalg.cholesky(Q + 1e-9 * jnp.eye(4, dtype=Q.dtype)).astype(dtype)
+    chol_q = _linalg.cholesky(Q + 1e-9 * jnp.eye(4, dtype=Q.dtype)).astype(dtype)
     F = F.astype(dtype)
     nb = cfg.num_births
     births, bmask = state.births, state.birth_mask
@@ -366,7 +376,7 @@ def _step(key, state, scans, robot_pose, params):
     H = jnp.eye(2, 4, dtype=dtype)
     R = clusters.covs[idx, :2, :2] + jnp.exp(2 * params.log_std[0]) * jnp.eye(2, dtype=dtype)
     S = pred_cov[:2, :2] + R
-    K = jnp.linalg.solve(S, pred_cov[:2, :]).T
+    K = (_inv2(S) @ pred_cov[:2, :]).T
     innov = clusters.means[idx, :2] - pred_mean[:2]
     IKH = jnp.eye(4, dtype=dtype) - K @ H
     post_cov = IKH @ pred_cov @ IKH.T + K @ R @ K.T

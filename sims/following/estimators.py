@@ -263,7 +263,7 @@ def _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params):
     r = jnp.exp(params.kf_log_r)
     S = g.cov[:2, :2] + r**2 * jnp.eye(2, dtype=dtype)
     d = rel - g.mean[:2]
-    d2 = jnp.einsum("mi,ij,mj->m", d, jnp.linalg.inv(S), d)
+    d2 = jnp.einsum("mi,ij,mj->m", d, people_pf._inv2(S), d)
     # chi-square 2-dof quantile in closed form: -2 log(1 - p)
     gate = -2.0 * jnp.log1p(-params.kf_gate)
     d2 = jnp.where(mask & (d2 <= gate), d2, jnp.inf)

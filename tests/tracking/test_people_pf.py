@@ -48,7 +48,12 @@ def test_field_of_view_is_an_indicator_away_from_edges():
     fov = jnp.array([0.5, 0.5, 4.5])
     pts = jnp.array([[1.0, 3.0], [3.0, 1.0], [1.0, 1.05], [1.0, 7.0], [1.0, -1.0]])
     f = people_pf.field_of_view(pts, pose, fov)
-    np.testing.assert_allclose(f, [1, 0, 0, 0, 0], atol=1e-3)
+    # The bearing edge is a sigmoid in cos(bearing): on the axis of a 57-degree camera it is
+    # 5 widths inside (0.994).
+    np.testing.assert_allclose(f, [1, 0, 0, 0, 0], atol=1e-2)
+    # At the edge the width is about `softness` radians: half way at the edge itself.
+    edge = jnp.array([[1.0 - 2.0 * np.sin(0.5), 1.0 + 2.0 * np.cos(0.5)]])
+    np.testing.assert_allclose(people_pf.field_of_view(edge, pose, fov), [0.5], atol=1e-3)
 
 
 @pytest.fixture(scope="module")
