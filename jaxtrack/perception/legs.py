@@ -357,11 +357,16 @@ def _segment(xy, valid, jump, S):
     found = jnp.sum(start).astype(jnp.int32)
     labels = jnp.where(valid & (index < S), index, -1).astype(jnp.int32)
     ids = jnp.where(labels >= 0, labels, S)
+    # Segments are runs of consecutive valid beams, each with one first and one last beam: a
+    # single segment_sum (XLA:CPU scatters are serial loops over the beams) gives both.
+    continues = valid & prev_ok                      # beam i is in beam i-1's segment
+    end = valid & ~jnp.concatenate([continues[1:], jnp.zeros(1, bool)])
     beams = jnp.arange(B, dtype=jnp.int32)
-    num = jax.ops.segment_sum(jnp.ones(B, jnp.int32), ids, S + 1)[:S]
-    mask = num > 0
-    first = jnp.where(mask, jax.ops.segment_min(beams, ids, S + 1)[:S], 0)
-    last = jnp.where(mask, jax.ops.segment_max(beams, ids, S + 1)[:S], 0)
+    ends = jnp.stack([jnp.where(start, beams, 0), jnp.where(end, beams, 0)], -1)
+    bounds = jax.ops.segment_sum(ends, ids, S + 1)[:S]
+    mask = jnp.arange(S) < found
+    first, last = bounds[:, 0], bounds[:, 1]
+    num = jnp.where(mask, last - first + 1, 0)
     return Segments(labels, first, last, num, mask, found, jnp.maximum(found - S, 0))
 
 
@@ -379,9 +384,11 @@ def _features(xy, segs):
     safe_n = jnp.maximum(n, 1.0)
     mean = total(xy) / safe_n[:, None]
     u = xy - mean[jnp.minimum(ids, S - 1)]
-    suu, svv, suv = total(u[:, 0] ** 2), total(u[:, 1] ** 2), total(u[:, 0] * u[:, 1])
     z = jnp.sum(u * u, -1)
-    suz, svz, sz = total(u[:, 0] * z), total(u[:, 1] * z), total(z)
+    # One scatter for all six moments (XLA:CPU scatters are serial loops over the beams).
+    moments = total(jnp.stack([u[:, 0] ** 2, u[:, 1] ** 2, u[:, 0] * u[:, 1], u[:, 0] * z,
+                               u[:, 1] * z, z], -1))
+    suu, svv, suv, suz, svz, sz = (moments[:, k] for k in range(6))
 
     # Linearity: smallest eigenvalue of the scatter, per point.
     half_tr, half_diff = 0.5 * (suu + svv), 0.5 * (suu - svv)
