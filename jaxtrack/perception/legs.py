@@ -480,13 +480,13 @@ def _motion_compatible(xy, mask, prev_legs, params):
     d = xy[:, None] - prev_xy[None]
     dist = jnp.sqrt(jnp.sum(d * d, -1) + 1e-30)
     dist = jnp.where(prev_mask[None], dist, jnp.inf)
-    # Nearest previous leg (first on ties, as argmin) by a one-hot row: no gather under vmap.
+    # Nearest previous leg (first on ties, as argmin), selected by a one-hot row.
     best = jnp.min(dist, -1)
     prev_idx = jnp.arange(prev_xy.shape[0])
     nearest = jnp.min(jnp.where(dist == best[:, None], prev_idx[None], prev_xy.shape[0]), -1)
-    onehot = (prev_idx[None] == nearest[:, None]).astype(xy.dtype)
+    onehot = prev_idx[None] == nearest[:, None]
     known = mask & (best <= params.motion_gate)
-    disp = xy - onehot @ jnp.where(prev_mask[:, None], prev_xy, 0.0)
+    disp = xy - jnp.sum(jnp.where(onehot[:, :, None], prev_xy[None], 0.0), 1)
     speed = jnp.sqrt(jnp.sum(disp * disp, -1) + 1e-30)
     moving = known & (speed > params.min_motion)
     unit = disp / speed[:, None]
