@@ -407,8 +407,9 @@ def _features(xy, segs):
     fit = fit & (rho_sq > 0)
     radius = jnp.where(fit, jnp.sqrt(jnp.where(fit, rho_sq, 1.0)), jnp.inf)
     local = jnp.where(fit[:, None], local, 0.0)
-    resid = jnp.sqrt(jnp.sum((u - local[jnp.minimum(ids, S - 1)]) ** 2, -1)) \
-        - jnp.where(fit, radius, 0.0)[jnp.minimum(ids, S - 1)]
+    circle = jnp.concatenate([local, jnp.where(fit, radius, 0.0)[:, None]], -1)
+    circle = circle[jnp.minimum(ids, S - 1)]                  # one gather: [B, 3]
+    resid = jnp.sqrt(jnp.sum((u - circle[:, :2]) ** 2, -1)) - circle[:, 2]
     circularity = jnp.where(fit, jnp.sqrt(total(resid ** 2) / safe_n), jnp.inf)
 
     width = jnp.linalg.norm(xy[segs.last] - xy[segs.first], axis=-1)
