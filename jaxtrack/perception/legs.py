@@ -341,6 +341,14 @@ def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(),
 # ---------------------------------------------------------------------------------------------
 
 
+def _sqrt0(x):
+    """sqrt with a zero (not NaN) gradient at 0: one-point segments have zero width and
+    scatter, and a NaN derivative there would poison the gradient of every range through the
+    segment sums even though those segments are masked out."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
 def _points(ranges, angles, min_range, max_range):
     valid = jnp.isfinite(ranges) & (ranges > min_range) & (ranges < max_range)
     r = jnp.where(valid, ranges, 0.0)
@@ -392,8 +400,8 @@ def _features(xy, segs):
 
     # Linearity: smallest eigenvalue of the scatter, per point.
     half_tr, half_diff = 0.5 * (suu + svv), 0.5 * (suu - svv)
-    lam_min = half_tr - jnp.sqrt(half_diff ** 2 + suv ** 2)
-    linearity = jnp.sqrt(jnp.maximum(lam_min, 0.0) / safe_n)
+    lam_min = half_tr - _sqrt0(half_diff ** 2 + suv ** 2)
+    linearity = _sqrt0(jnp.maximum(lam_min, 0.0) / safe_n)
 
     # Kasa fit; undefined for < 3 points or (numerically) collinear points.
     det = suu * svv - suv ** 2
@@ -409,11 +417,11 @@ def _features(xy, segs):
     local = jnp.where(fit[:, None], local, 0.0)
     circle = jnp.concatenate([local, jnp.where(fit, radius, 0.0)[:, None]], -1)
     circle = circle[jnp.minimum(ids, S - 1)]                  # one gather: [B, 3]
-    resid = jnp.sqrt(jnp.sum((u - circle[:, :2]) ** 2, -1)) - circle[:, 2]
-    circularity = jnp.where(fit, jnp.sqrt(total(resid ** 2) / safe_n), jnp.inf)
+    resid = _sqrt0(jnp.sum((u - circle[:, :2]) ** 2, -1)) - circle[:, 2]
+    circularity = jnp.where(fit, _sqrt0(total(resid ** 2) / safe_n), jnp.inf)
 
-    width = jnp.linalg.norm(xy[segs.last] - xy[segs.first], axis=-1)
-    dist = jnp.linalg.norm(mean, axis=-1)
+    width = _sqrt0(jnp.sum((xy[segs.last] - xy[segs.first]) ** 2, -1))
+    dist = _sqrt0(jnp.sum(mean**2, -1))
     outward = mean / jnp.where(dist > 0, dist, 1.0)[:, None]
     position = mean + (0.125 * math.pi) * width[:, None] * outward
     zero = jnp.zeros_like(mean)

@@ -173,10 +173,23 @@ def _rotate(theta, v):
     return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
 
 
+def _norm(v):
+    """Euclidean norm over the last axis with a finite gradient at 0 (scan outputs that a loss
+    does not use still get zero cotangents, and 0 * inf would turn them into NaN)."""
+    sq = jnp.sum(v**2, -1)
+    pos = sq > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+
+
+def _safe_sqrt(x):
+    ok = (x > 0) & jnp.isfinite(x)
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), jnp.where(x > 0, jnp.inf, 0.0))
+
+
 def _visible(ranges, laser_pose, leg_xy, leg_r, cfg):
     """[P] a person is visible when the beam nearest to one of its legs reaches that leg."""
     rel = estimators.to_frame(laser_pose, leg_xy)  # [P, 2, 2]
-    dist = jnp.sqrt(jnp.sum(rel**2, -1))
+    dist = _norm(rel)
     bearing = jnp.arctan2(rel[..., 1], rel[..., 0])
     step = math.radians(cfg.step_deg)
     half = 0.5 * (cfg.num_beams - 1)
@@ -278,9 +291,9 @@ def make_rollout(config: EpisodeConfig):
             # Metrics (world frame).
             user = people.pos[0]
             fp = estimators.from_frame(pose, params.follower.point)
-            err = jnp.sqrt(jnp.sum((fp - user) ** 2))
+            err = _norm(fp - user)
             est_world = estimators.from_frame(pose, rel)
-            d_est = jnp.sqrt(jnp.sum((people.pos - est_world) ** 2, -1))
+            d_est = _norm(people.pos - est_world)
             d_est = jnp.where(people.mask, d_est, jnp.inf)
             who = jnp.argmin(d_est)
             on = jnp.where(d_est[who] <= LOST_DISTANCE, who, -1).astype(jnp.int32)
@@ -291,16 +304,16 @@ def make_rollout(config: EpisodeConfig):
             visible = _visible(ranges, lpose, leg_xy.astype(dtype), leg_r.astype(dtype), lcfg)
             visible = visible & people.mask
             hyp = estimators.from_frame(pose, estimators.to_frame(odom, e.people))
-            d_rob = jnp.sqrt(jnp.sum((people.pos - pose[:2]) ** 2, -1)) - robot_radius
+            d_rob = _norm(people.pos - pose[:2]) - robot_radius
             near = jnp.any(people.mask & (d_rob < INTIMATE))
             lw = estimators.from_frame(lpose, det.people.xy.astype(dtype))
             lu = jnp.min(jnp.where(laser_mask, jnp.sum((lw - user) ** 2, -1), jnp.inf))
             rw = estimators.from_frame(pose, rd.xy.astype(dtype))
             ru = jnp.min(jnp.where(rd.mask, jnp.sum((rw - user) ** 2, -1), jnp.inf))
             rec = Frame(pose, people.pos, people.mask, est_world, err,
-                        jnp.sqrt(jnp.sum((est_world - user) ** 2)) > LOST_DISTANCE, visible,
+                        _norm(est_world - user) > LOST_DISTANCE, visible,
                         hyp, e.people_ids, e.people_mask & multi, near, blocked, u,
-                        jnp.sqrt(lu), jnp.sqrt(ru))
+                        _safe_sqrt(lu), _safe_sqrt(ru))
             new = _Carry(data, people, pose, odom, est, u,
                          estimators.from_frame(lodom, det.legs_xy.astype(dtype)),
                          det.legs_mask, unseen, last_id, c.switches + switched)

@@ -320,3 +320,23 @@ def test_pairing_matches_a_plain_greedy_loop_including_ties(dtype):
         ref, dropped = _greedy_reference(xy[k], mask[k], 0.5, single[k] > 0, 5)
         np.testing.assert_array_equal(people.legs[k], ref)
         assert int(people.dropped[k]) == dropped
+
+
+def test_gradient_of_people_wrt_ranges_is_finite_with_one_point_segments():
+    # Isolated single returns make one-point segments (zero width, zero scatter); their sqrt
+    # derivatives must not turn the gradient of the detected people into NaN.
+    rng = np.random.default_rng(4)
+    angles = jnp.linspace(-1.0, 1.0, 121)
+    ranges = np.full(121, 5.6)
+    ranges[10], ranges[40], ranges[41], ranges[90] = 2.0, 3.0, 3.5, 1.5
+    ranges[60:66] = 2.0 + 0.01 * rng.normal(size=6)
+    ranges[70:76] = 2.0 + 0.01 * rng.normal(size=6)
+
+    def f(r):
+        d = legs.detect(r, angles, max_segments=16, max_people=4)
+        return jnp.sum(jnp.where(d.people.mask[:, None], d.people.xy, 0.0)) + jnp.sum(
+            jnp.where(d.features.mask, d.features.width + d.features.linearity, 0.0))
+
+    g = jax.grad(f)(jnp.asarray(ranges))
+    assert np.all(np.isfinite(np.asarray(g)))
+    assert np.any(np.asarray(g) != 0)
