@@ -50,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="follower point: A = (1.5, 0), B = (1, 1) m in the robot frame")
     follow.add_argument("--people", type=int, default=4, help="distractors besides the user")
     follow.add_argument("--sensors", choices=("both", "laser", "rgbd"), default="both")
+    follow.add_argument("--appearance", action="store_true",
+                        help="GNN: add the RGB-D colour classifier term to the cost (seed 001)")
     follow.add_argument("--duration", type=float, default=60.0, help="seconds per episode")
     follow.add_argument("--particles", type=int, default=256)
     follow.add_argument("--batch-size", type=int, default=None)
@@ -73,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
         run_person_following(args.episodes, args.estimator, args.follower, args.people,
                              args.out, args.seed, args.duration, args.sensors, args.particles,
-                             args.batch_size)
+                             args.batch_size, appearance=args.appearance)
         return 0
     if args.episodes < 1 or args.particles < 1 or args.frames < 1:
         parser.error("--episodes, --particles and --frames must be positive")

@@ -40,7 +40,8 @@ def metrics_table(metrics: dict, title: str = "") -> str:
 def run_person_following(episodes: int = 256, estimator: str = "pf", follower: str = "A",
                          people: int = 4, out: Path | None = None, seed: int = 0,
                          duration: float = 60.0, sensors: str = "both", particles: int = 256,
-                         batch_size: int | None = None, stream=sys.stdout) -> dict:
+                         batch_size: int | None = None, stream=sys.stdout,
+                         appearance: bool = False) -> dict:
     """Run ``episodes`` closed-loop episodes, print the metrics table, write plots to ``out``.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -52,7 +53,8 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     from sims.following import estimators, scene
 
     sc = scene.build(num_people=max(8, people + 1))
-    ecfg = estimators.EstimatorConfig(kind=estimator, sensors=sensors, num_particles=particles)
+    ecfg = estimators.EstimatorConfig(kind=estimator, sensors=sensors, num_particles=particles,
+                                      appearance=appearance)
     cfg = ep.EpisodeConfig(sc, ecfg, distractors=people, duration=duration)
     params = ep.make_params(cfg, point=follower)
     episode_fn = ep.make_episode(cfg)
@@ -70,7 +72,8 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     compile_s = max(first_s - run_s * bs / episodes, 0.0)
     m = {k: np.asarray(v) for k, v in res.metrics.items()}
     title = (f"person following: {episodes} episodes x {duration:.0f} s, estimator {estimator}"
-             f" ({sensors}), follower point {follower}, {people} distractors")
+             f" ({sensors}{', appearance' if appearance else ''}), follower point {follower}, "
+             f"{people} distractors")
     table = metrics_table(m, title)
     print(table, file=stream)
     print(f"simulated in {run_s:.1f} s after {compile_s:.1f} s of compilation "
