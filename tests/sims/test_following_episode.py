@@ -90,3 +90,19 @@ def test_cli_rejects_bad_arguments(capsys):
     with pytest.raises(SystemExit):
         cli.main(["run", "person-following", "--people", "40"])
     assert "--people" in capsys.readouterr().err
+
+
+def test_command_prints_table_and_writes_plots(tmp_path):
+    import io
+
+    from sims.following.report import run_person_following
+
+    out = io.StringIO()
+    res = run_person_following(episodes=2, estimator="kf", people=2, out=tmp_path,
+                               duration=1.0, batch_size=2, stream=out)
+    text = out.getvalue()
+    assert "following RMS error" in text and "user lost" in text
+    assert res["metrics"]["following_rms"].shape == (2,)
+    assert np.all(np.isfinite(res["metrics"]["following_rms"]))
+    for name in ("top_view.png", "following_error.png", "metrics.npz"):
+        assert (tmp_path / name).stat().st_size > 0
