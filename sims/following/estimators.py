@@ -47,6 +47,8 @@ class EstimatorConfig:
       kind: one of `ESTIMATORS`.
       sensors: "both", "laser" or "rgbd" (which detections the estimator uses).
       num_particles, max_clusters: particle filter sizes.
+      resampler: particle filter resampler ("systematic", or a differentiable scheme, see
+        `people_pf.PeoplePFConfig`).
       capacity: tracker slots.
       jpda_method: "exact" or "lbp".
       appearance: use the RGB-D colour feature in the GNN cost (seed 001's online classifier).
@@ -177,8 +179,8 @@ def init(key: Array, params: EstimatorParams, user_xy: Array, odom_pose: Array):
     dtype = params.kf_log_r.dtype
     user_xy = jnp.asarray(user_xy, dtype)
     if cfg.kind == "pf":
-        return people_pf.init(key, params.pf, user_xy,
-                              max_births=8 + 8)
+        # Births are drawn around at most 16 of the last scan's detections (laser + RGB-D).
+        return people_pf.init(key, params.pf, user_xy, max_births=16)
     if cfg.kind == "kf":
         rel = to_frame(jnp.asarray(odom_pose, dtype), user_xy)
         mean = jnp.concatenate([rel, jnp.zeros(4, dtype)])
