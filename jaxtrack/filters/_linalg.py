@@ -21,6 +21,15 @@ def symmetrize(a):
     return 0.5 * (a + jnp.swapaxes(a, -1, -2))
 
 
+def inv2(a):
+    """Closed-form inverse of [..., 2, 2] matrices (batched LAPACK calls on tiny matrices are
+    slow on the CPU)."""
+    p, q, r, t = a[..., 0, 0], a[..., 0, 1], a[..., 1, 0], a[..., 1, 1]
+    det = p * t - q * r
+    inv = jnp.stack([jnp.stack([t, -q], -1), jnp.stack([-r, p], -1)], -2)
+    return inv / det[..., None, None]
+
+
 def cholesky(a):
     """Lower Cholesky factor of a symmetric positive-definite matrix [..., n, n].
 

@@ -203,15 +203,6 @@ class PeoplePFState(NamedTuple):
     birth_mask: Array
 
 
-def _inv2(S):
-    """Closed-form inverse of [..., 2, 2] matrices (LAPACK calls on tiny batched matrices are
-    slow on the CPU)."""
-    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
-    det = a * d - b * c
-    inv = jnp.stack([jnp.stack([d, -b], -1), jnp.stack([-c, a], -1)], -2)
-    return inv / det[..., None, None]
-
-
 def field_of_view(xy: Array, robot_pose: Array, fov: Array, softness: float = 0.05) -> Array:
     """Smooth indicator [..] in [0, 1] that points ``xy [..., 2]`` lie in a sensor's field of
     view ``fov = (half_angle, min_range, max_range)`` at ``robot_pose = (x, y, theta)``:
@@ -268,7 +259,7 @@ def select_target(clusters: clustering.Clusters, predicted: Array, gate: float,
     else:
         S = predicted_cov + clusters.covs[:, :2, :2]
         S = S + 1e-6 * jnp.eye(2, dtype=S.dtype)
-        d2 = jnp.einsum("ki,kij,kj->k", diff, _inv2(S), diff)
+        d2 = jnp.einsum("ki,kij,kj->k", diff, _linalg.inv2(S), diff)
     d2 = jnp.where(ok, d2, jnp.inf)
     idx = jnp.argmin(d2)
     return idx, jnp.isfinite(d2[idx])
@@ -376,7 +367,7 @@ def _step(key, state, scans, robot_pose, params):
     H = jnp.eye(2, 4, dtype=dtype)
     R = clusters.covs[idx, :2, :2] + jnp.exp(2 * params.log_std[0]) * jnp.eye(2, dtype=dtype)
     S = pred_cov[:2, :2] + R
-    K = (_inv2(S) @ pred_cov[:2, :]).T
+    K = (_linalg.inv2(S) @ pred_cov[:2, :]).T
     innov = clusters.means[idx, :2] - pred_mean[:2]
     IKH = jnp.eye(4, dtype=dtype) - K @ H
     post_cov = IKH @ pred_cov @ IKH.T + K @ R @ K.T

@@ -168,11 +168,6 @@ class Frame(NamedTuple):
     rgbd_user: Array    # distance from the user to the nearest RGB-D detection (m; inf: none)
 
 
-def _rotate(theta, v):
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
-
-
 def _norm(v):
     """Euclidean norm over the last axis with a finite gradient at 0 (scan outputs that a loss
     does not use still get zero cotangents, and 0 * inf would turn them into NaN)."""
@@ -276,7 +271,7 @@ def make_rollout(config: EpisodeConfig):
             # Control in the robot frame.
             unseen = jnp.where(e.user_found, 0.0, c.unseen + dt)
             rel = estimators.to_frame(odom, e.user[:2])
-            vel = _rotate(-odom[2], e.user[2:]) * (unseen <= config.lost_timeout)
+            vel = estimators.rotate(-odom[2], e.user[2:]) * (unseen <= config.lost_timeout)
             pts, valid = lidar.scan_points(ranges, angles, lcfg)
             corridor = (pts[:, 0] > 0) & (jnp.abs(pts[:, 1]) < robot_radius + 0.05)
             obstacles = pts + jnp.asarray(lcfg.mount, dtype)

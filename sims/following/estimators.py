@@ -25,6 +25,7 @@ import jax.numpy as jnp
 
 from jaxtrack import _checks
 from jaxtrack.angles import wrap
+from jaxtrack.filters import _linalg
 from jaxtrack.filters import heading as heading_filter
 from jaxtrack.filters import kalman
 from jaxtrack.models import measurement, motion
@@ -33,7 +34,7 @@ from jaxtrack.tracking import people_pf, tracker
 Array = jax.Array
 
 __all__ = ["ESTIMATORS", "EstimatorConfig", "EstimatorParams", "Estimate", "Detected", "init",
-           "update", "to_frame", "from_frame"]
+           "update", "to_frame", "from_frame", "rotate"]
 
 ESTIMATORS = ("pf", "gnn", "jpda", "nnjpda", "kf")
 SENSORS = ("both", "laser", "rgbd")
@@ -162,7 +163,9 @@ def from_frame(pose: Array, xy: Array) -> Array:
                                  s * xy[..., 0] + c * xy[..., 1]], -1)
 
 
-def _rotate(theta, v):
+def rotate(theta, v: Array) -> Array:
+    """Vectors [..., 2] rotated by ``theta`` (e.g. robot-frame velocities into the parent
+    frame; ``-theta`` for the inverse)."""
     c, s = jnp.cos(theta), jnp.sin(theta)
     return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
 
@@ -265,7 +268,7 @@ def _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params):
     r = jnp.exp(params.kf_log_r)
     S = g.cov[:2, :2] + r**2 * jnp.eye(2, dtype=dtype)
     d = rel - g.mean[:2]
-    d2 = jnp.einsum("mi,ij,mj->m", d, people_pf._inv2(S), d)
+    d2 = jnp.einsum("mi,ij,mj->m", d, _linalg.inv2(S), d)
     # chi-square 2-dof quantile in closed form: -2 log(1 - p)
     gate = -2.0 * jnp.log1p(-params.kf_gate)
     d2 = jnp.where(mask & (d2 <= gate), d2, jnp.inf)
@@ -279,7 +282,7 @@ def _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params):
     g, _ = kalman.update(g, z, H, R, zmask)
     head = heading_filter.ar_heading_step(head, g.mean[2:4])
     user_xy = from_frame(odom_pose, g.mean[:2])
-    user_v = _rotate(odom_pose[2], g.mean[2:4])
+    user_v = rotate(odom_pose[2], g.mean[2:4])
     user = jnp.concatenate([user_xy, user_v])
     est = Estimate(user, found, wrap(head + odom_pose[2]), jnp.int32(0), user_xy[None],
                    jnp.zeros(1, jnp.int32), jnp.ones(1, bool))
