@@ -1,0 +1,404 @@
+r"""Pedestrian-trajectory files and MOTChallenge-style CSV, read into fixed-shape ground truth.
+
+Files are parsed with plain Python / numpy at the boundary; everything returned is a
+`jax.numpy` array in the layout of `jaxtrack.metrics.clear_mot`: per frame, a fixed number P of
+person slots with ids (-1 in empty slots), ground-plane positions (m) and a mask. Within a frame
+the people are sorted by id, so the layout of a file is unique.
+
+Formats (``#`` comments and blank lines are skipped everywhere):
+
+- **ETH / UCY** ``obsmat.txt`` (Pellegrini et al., "You'll never walk alone", ICCV 2009):
+  whitespace-separated rows ``frame id x z y vx vz vy`` (8 floats; frame and id are stored as
+  floats such as ``7.8000000e+02``). ``x, y`` are the ground plane, ``z`` the height (0 in the
+  published files); positions in m, velocities in m/s. ``read_obsmat`` keeps ``x, y, vx, vy``.
+- **Plain**: rows ``frame id x y``, separated by whitespace or commas (`read_plain`).
+- **MOTChallenge CSV** (Milan et al., "MOT16: a benchmark for multi-object tracking", 2016),
+  ground-plane "3D" form: ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, x, y, z``
+  (10 columns). `read_mot_csv` reads columns 1 (frame), 2 (id), 8 (x) and 9 (y), 1-based; the
+  image columns, ``conf`` and ``z`` are not interpreted. It also accepts the short form
+  ``frame,id,x,y`` (4 columns).
+  `write_mot_csv` writes the 10-column form with ``-1`` in the four image columns, ``conf = 1``,
+  ``z = 0``, ids as given (no shift to 1-based) and positions with the shortest decimal that
+  reads back to the same float, so its output reads back identically.
+
+Every reader skips one header row whose first field is ``frame``, and raises
+`FileNotFoundError` for a missing file and `ValueError` naming the file and the 1-based line
+for a malformed row (wrong number of columns, a non-number, a non-integer or negative frame /
+id, a non-finite value) and for a repeated (frame, id) pair; a file without data rows is an
+error too.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxtrack import _checks
+from jaxtrack.metrics import clear_mot
+
+Array = jax.Array
+
+__all__ = ["Trajectories", "read_obsmat", "read_plain", "read_mot_csv", "write_mot_csv",
+           "read", "evaluate_files", "format_clear_mot", "FORMATS"]
+
+FORMATS = ("auto", "obsmat", "plain", "mot")
+
+
+class Trajectories(NamedTuple):
+    """Ground-truth (or tracker) trajectories with P person slots per frame.
+
+    Attributes:
+      frames: [T] int32 frame numbers, sorted increasing, each once.
+      ids: [T, P] int32 person ids (>= 0), -1 in empty slots; sorted within a frame.
+      pos: [T, P, 2] ground-plane positions (m); 0 in empty slots.
+      mask: [T, P] bools, True where a slot holds a person.
+      vel: [T, P, 2] velocities (m/s) when the file has them (obsmat), 0 in empty slots; else
+        None.
+      times: [T] times (s), ``frames / fps``, when ``fps`` was given; else None.
+    """
+
+    frames: Array
+    ids: Array
+    pos: Array
+    mask: Array
+    vel: Array | None = None
+    times: Array | None = None
+
+
+def read_obsmat(path, *, fps: float | None = None, max_people: int | None = None,
+                dtype=None) -> Trajectories:
+    """Read an ETH / UCY ``obsmat.txt`` (rows ``frame id x z y vx vz vy``; module doc).
+
+    Args:
+      path: file path.
+      fps: frame rate; when given, ``times = frames / fps`` (ETH and UCY: 25 fps, annotated
+        every 10 frames in ETH ``seq_eth``, every 6 in ``seq_hotel``).
+      max_people: number of slots P; default the largest number of people in one frame. A
+        ``ValueError`` names the first frame with more people.
+      dtype: float dtype of ``pos``, ``vel``, ``times`` (default: JAX's default float).
+
+    Returns:
+      `Trajectories` with ``vel`` ([T, P, 2], from ``vx, vy``).
+
+    Example:
+      >>> traj = read_obsmat("seq_eth/obsmat.txt", fps=25.0)
+      >>> traj.pos.shape  # [T, P, 2]
+    """
+    rows, lines = _parse(path, "obsmat", (8,), r"\s+")
+    return _assemble(path, rows[:, 0], rows[:, 1], rows[:, [2, 4]], rows[:, [5, 7]], lines,
+                     fps, max_people, dtype)
+
+
+def read_plain(path, *, fps: float | None = None, max_people: int | None = None,
+               dtype=None) -> Trajectories:
+    """Read rows ``frame id x y`` separated by whitespace or commas (``vel`` is None).
+
+    Args and Returns as `read_obsmat`.
+
+    Example:
+      >>> traj = read_plain("crowd.txt", fps=2.5)
+    """
+    rows, lines = _parse(path, "plain", (4,), r"[\s,]+")
+    return _assemble(path, rows[:, 0], rows[:, 1], rows[:, 2:4], None, lines, fps, max_people,
+                     dtype)
+
+
+def read_mot_csv(path, *, fps: float | None = None, max_people: int | None = None,
+                 dtype=None) -> Trajectories:
+    """Read a MOTChallenge-style ground-plane CSV: the 10-column "3D" form
+    ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, x, y, z`` (columns 1, 2, 8, 9 are
+    read) or the short form ``frame,id,x,y``.
+
+    Args and Returns as `read_obsmat` (``vel`` is None).
+
+    Example:
+      >>> tracks = read_mot_csv("tracks.csv")
+    """
+    rows, lines = _parse(path, "MOT CSV", (4, 10), r"\s*,\s*")
+    return _assemble(path, rows[:, 0], rows[:, 1], rows[:, 2:4], None, lines, fps, max_people,
+                     dtype)
+
+
+def write_mot_csv(path, frames, ids, pos, mask) -> int:
+    """Write trajectories or tracker output as 10-column MOTChallenge ground-plane CSV.
+
+    One row ``frame,id,-1,-1,-1,-1,1,x,y,0`` per present slot (``mask`` True and ``id >= 0``),
+    frame by frame, slots in id order. `read_mot_csv` reads the file back to the same
+    (frame, id, x, y) rows; frames without anyone are not written.
+
+    Args:
+      path: output file (overwritten).
+      frames: [T] integer frame numbers.
+      ids: [T, P] integer ids (>= 0 where present).
+      pos: [T, P, 2] ground-plane positions (m), finite where present.
+      mask: [T, P] bools, or None (present where ``id >= 0``).
+
+    Returns:
+      The number of rows written.
+
+    Example:
+      >>> final, seq = jax.jit(tracking.run)(tracking.init(cfg), dets, params)
+      >>> confirmed = seq.status == tracking.CONFIRMED
+      >>> write_mot_csv("tracks.csv", traj.frames, seq.id, seq.mean[..., :2], confirmed)
+    """
+    frames = np.asarray(frames)
+    _checks.check_ndim("frames", frames, 1, "[T] frame numbers")
+    T = frames.shape[0]
+    ids = np.asarray(ids)
+    _checks.check_ndim("ids", ids, 2, "[T, P] ids")
+    P = ids.shape[1]
+    _checks.check_shape("ids", ids, (T, P), f"[T, P] ids with T = {T}")
+    pos = np.asarray(pos)
+    _checks.check_shape("pos", pos, (T, P, 2), "[T, P, 2] positions")
+    for name, a in (("frames", frames), ("ids", ids)):
+        if not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"{name} must be integers; got dtype {a.dtype}")
+    present = ids >= 0
+    if mask is not None:
+        mask = np.asarray(mask)
+        _checks.check_shape("mask", mask, (T, P), "[T, P] bools")
+        present &= mask.astype(bool)
+    if np.any(frames < 0):
+        raise ValueError("frames must be >= 0")
+    if len(np.unique(frames)) != T:
+        raise ValueError("frames must be distinct")
+    if not np.all(np.isfinite(pos[present])):
+        t = int(np.argmax(~np.all(np.isfinite(np.where(present[..., None], pos, 0.0)), (1, 2))))
+        raise ValueError(f"pos contains NaN or inf in a present slot (frame {int(frames[t])})")
+    pos64 = pos.astype(np.float64)
+    out = []
+    for t in np.argsort(frames, kind="stable"):
+        slots = np.flatnonzero(present[t])
+        slot_ids = ids[t, slots]
+        if len(np.unique(slot_ids)) != len(slot_ids):
+            raise ValueError(f"ids repeat within frame {int(frames[t])}: "
+                             f"{sorted(slot_ids.tolist())}")
+        for k in slots[np.argsort(slot_ids, kind="stable")]:
+            x, y = (float(v) for v in pos64[t, k])
+            out.append(f"{int(frames[t])},{int(ids[t, k])},-1,-1,-1,-1,1,{x!r},{y!r},0\n")
+    with open(os.fspath(path), "w") as f:
+        f.writelines(out)
+    return len(out)
+
+
+def read(path, fmt: str = "auto", **kwargs) -> Trajectories:
+    """Read any supported file: ``fmt`` is ``"obsmat"``, ``"plain"``, ``"mot"`` or ``"auto"``
+    (8 columns: obsmat; 10 columns: MOT CSV; 4 columns: plain, which also reads the short MOT
+    form). Keyword arguments go to the reader.
+
+    Example:
+      >>> gt = read("obsmat.txt", fps=25.0)
+    """
+    _checks.check_options("fmt", (fmt,), FORMATS)
+    if fmt == "auto":
+        fmt = _sniff(path)
+    reader = {"obsmat": read_obsmat, "plain": read_plain, "mot": read_mot_csv}[fmt]
+    return reader(path, **kwargs)
+
+
+def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "auto") -> dict:
+    """CLEAR MOT of a tracks file against a ground-truth file (`jaxtrack.metrics.clear_mot`).
+
+    The frames evaluated are those present in either file; a frame missing from the tracks
+    file has no hypotheses (its people are misses), a frame missing from the ground truth has
+    no objects (its tracks are false positives). Ground-truth ids are renumbered 0, 1, ... for
+    `clear_mot` (identity is unchanged). Convention ``"motmetrics"`` (see
+    `jaxtrack.metrics.clear_mot`).
+
+    Args:
+      gt_path, tracks_path: files in any supported format.
+      threshold: largest distance (m) of a correspondence, > 0.
+      fmt: format of both files, ``"auto"`` (each file sniffed, see `read`), ``"obsmat"``,
+        ``"plain"`` or ``"mot"``.
+
+    Returns:
+      dict with ``mota, motp, precision, recall`` (floats; NaN when undefined),
+      ``num_frames, num_objects, num_predictions, num_matches, num_switches, num_misses,
+      num_false_positives, num_fragmentations, mostly_tracked, partially_tracked, mostly_lost``
+      (ints) and ``threshold``.
+
+    Example:
+      >>> res = evaluate_files("gt.txt", "tracks.csv", threshold=0.5)
+      >>> print(format_clear_mot(res))
+    """
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)) \
+            or not np.isfinite(threshold) or threshold <= 0:
+        raise ValueError(f"threshold must be a positive number (m); got {threshold!r}")
+    _checks.check_options("fmt", (fmt,), FORMATS)
+    gt = read(gt_path, fmt)
+    hyp = read(tracks_path, fmt)
+    frames = np.union1d(np.asarray(gt.frames), np.asarray(hyp.frames))
+    gt_ids, gt_pos = _on_frames(gt, frames)
+    hyp_ids, hyp_pos = _on_frames(hyp, frames)
+    _, dense = np.unique(gt_ids, return_inverse=True)
+    dense = dense.reshape(gt_ids.shape) - (1 if np.any(gt_ids < 0) else 0)
+    gt_ids = np.where(gt_ids >= 0, dense, -1).astype(np.int32)
+    num_ids = max(int(gt_ids.max()) + 1, 1)
+    res = jax.device_get(clear_mot(jnp.asarray(gt_ids), jnp.asarray(gt_pos), None,
+                                   jnp.asarray(hyp_ids), jnp.asarray(hyp_pos), None,
+                                   float(threshold), num_ids=num_ids))
+    out = {name: float(getattr(res, name)) for name in ("mota", "motp", "precision", "recall")}
+    out["num_frames"] = int(len(frames))
+    for name in ("num_objects", "num_predictions", "num_matches", "num_switches", "num_misses",
+                 "num_false_positives", "num_fragmentations", "mostly_tracked",
+                 "partially_tracked", "mostly_lost"):
+        out[name] = int(getattr(res, name))
+    out["threshold"] = float(threshold)
+    return out
+
+
+def format_clear_mot(result: dict) -> str:
+    """A short table of an `evaluate_files` result.
+
+    Example:
+      >>> print(format_clear_mot(evaluate_files("gt.txt", "tracks.csv")))
+    """
+    r = result
+    rows = [
+        ("MOTA", f"{r['mota']:.4f}"),
+        ("MOTP", f"{r['motp']:.4f} m"),
+        ("precision", f"{r['precision']:.4f}"),
+        ("recall", f"{r['recall']:.4f}"),
+        ("matches", f"{r['num_matches']}"),
+        ("id switches", f"{r['num_switches']}"),
+        ("misses", f"{r['num_misses']}"),
+        ("false positives", f"{r['num_false_positives']}"),
+        ("fragmentations", f"{r['num_fragmentations']}"),
+        ("objects", f"{r['num_objects']}"),
+        ("hypotheses", f"{r['num_predictions']}"),
+        ("MT / PT / ML", f"{r['mostly_tracked']} / {r['partially_tracked']} / "
+                         f"{r['mostly_lost']}"),
+    ]
+    head = f"CLEAR MOT over {r['num_frames']} frames, threshold {r['threshold']:g} m"
+    width = max(len(k) for k, _ in rows)
+    return "\n".join([head] + [f"  {k:<{width}}  {v}" for k, v in rows])
+
+
+# ---------------------------------------------------------------------------------------------
+# Internals
+
+
+def _open_lines(path):
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no such trajectory file: {path!r}")
+    with open(path, encoding="utf-8") as f:
+        return path, f.read().splitlines()
+
+
+def _data_lines(lines):
+    """(1-based line number, stripped text) of the lines that are neither blank nor comments."""
+    for i, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].strip()
+        if text:
+            yield i, text
+
+
+def _sniff(path):
+    name, lines = _open_lines(path)
+    for i, text in _data_lines(lines):
+        fields = re.split(r"[\s,]+", text)
+        if fields[0].lower() == "frame":
+            continue
+        fmt = {8: "obsmat", 10: "mot", 4: "plain"}.get(len(fields))
+        if fmt is None:
+            raise ValueError(f"{name}, line {i}: cannot tell the format from {len(fields)} "
+                             "columns (obsmat has 8, MOT CSV 10, plain / short MOT 4)")
+        return fmt
+    raise ValueError(f"{name}: no data rows")
+
+
+def _parse(path, what, ncols, sep):
+    """Rows as a float64 array [N, 4 or 8] (MOT rows reduced to frame, id, x, y) and the line
+    number of each row."""
+    name, lines = _open_lines(path)
+    rows, numbers = [], []
+    first = True
+    for i, text in _data_lines(lines):
+        fields = re.split(sep, text)
+        if first and fields[0].strip().lower() == "frame":
+            first = False
+            continue
+        first = False
+        if len(fields) not in ncols:
+            want = " or ".join(str(n) for n in ncols)
+            raise ValueError(f"{name}, line {i}: expected {want} columns ({what}); got "
+                             f"{len(fields)}: {text!r}")
+        try:
+            values = [float(v) for v in fields]
+        except ValueError:
+            raise ValueError(f"{name}, line {i}: not a number in {text!r}") from None
+        if len(fields) == 10:
+            values = [values[0], values[1], values[7], values[8]]
+        if not all(np.isfinite(values)):
+            raise ValueError(f"{name}, line {i}: NaN or inf in {text!r}")
+        for label, v in (("frame", values[0]), ("id", values[1])):
+            if v != int(v) or v < 0 or v >= 2**31:
+                raise ValueError(f"{name}, line {i}: {label} must be a non-negative integer; "
+                                 f"got {fields[0 if label == 'frame' else 1]!r}")
+        rows.append(values)
+        numbers.append(i)
+    if not rows:
+        raise ValueError(f"{name}: no data rows (empty file, or only comments)")
+    return np.asarray(rows, np.float64), np.asarray(numbers)
+
+
+def _assemble(path, frame, pid, xy, vel, lines, fps, max_people, dtype):
+    name = os.fspath(path)
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number; got {fps!r}")
+    if max_people is not None and (not isinstance(max_people, (int, np.integer))
+                                   or max_people < 1):
+        raise ValueError(f"max_people must be a positive int; got {max_people!r}")
+    frame = frame.astype(np.int64)
+    pid = pid.astype(np.int64)
+    order = np.lexsort((lines, pid, frame))
+    frame, pid, lines = frame[order], pid[order], lines[order]
+    xy = xy[order]
+    same = (frame[1:] == frame[:-1]) & (pid[1:] == pid[:-1])
+    if np.any(same):
+        k = int(np.argmax(same))
+        raise ValueError(f"{name}, line {int(lines[k + 1])}: frame {int(frame[k])}, id "
+                         f"{int(pid[k])} already given on line {int(lines[k])}")
+    frames, row_t, counts = np.unique(frame, return_inverse=True, return_counts=True)
+    P = int(counts.max())
+    if max_people is not None:
+        if P > max_people:
+            t = int(np.argmax(counts > max_people))
+            raise ValueError(f"{name}: frame {int(frames[t])} has {int(counts[t])} people, "
+                             f"more than max_people = {max_people}")
+        P = int(max_people)
+    T = len(frames)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(frame)) - starts[row_t]
+    ids = np.full((T, P), -1, np.int32)
+    ids[row_t, slot] = pid
+    pos = np.zeros((T, P, 2))
+    pos[row_t, slot] = xy
+    mask = ids >= 0
+    dtype = jnp.result_type(float) if dtype is None else dtype
+    out_vel = None
+    if vel is not None:
+        v = np.zeros((T, P, 2))
+        v[row_t, slot] = vel[order]
+        out_vel = jnp.asarray(v, dtype)
+    times = None if fps is None else jnp.asarray(frames / float(fps), dtype)
+    return Trajectories(jnp.asarray(frames, jnp.int32), jnp.asarray(ids), jnp.asarray(pos, dtype),
+                        jnp.asarray(mask), out_vel, times)
+
+
+def _on_frames(traj, frames):
+    """ids [T, P] and positions [T, P, 2] (numpy) of ``traj`` on the sorted ``frames``, which
+    contain ``traj.frames``; frames it lacks are empty."""
+    P = max(traj.ids.shape[1], 1)
+    ids = np.full((len(frames), P), -1, np.int32)
+    pos = np.zeros((len(frames), P, 2))
+    where = np.searchsorted(frames, np.asarray(traj.frames))
+    ids[where, :traj.ids.shape[1]] = np.asarray(traj.ids)
+    pos[where, :traj.ids.shape[1]] = np.asarray(traj.pos)
+    return ids, pos
