@@ -1,9 +1,11 @@
-"""Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach`` and
-``jaxtrack run person-following``.
+"""Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach``,
+``jaxtrack run person-following``, ``jaxtrack track`` and ``jaxtrack evaluate``.
 
 The console command lives in `sims` so that importing `jaxtrack` never imports MuJoCo; ``demo``
 dispatches to `jaxtrack.demo.run`, ``run humanoid-reach`` to `run_humanoid_reach`, ``run
-person-following`` to `sims.following.report.run_person_following`.
+person-following`` to `sims.following.report.run_person_following`, ``track`` (leg detection and
+a tracker replayed on a ROS bag) to `sims.following.replay.track_bag`, ``evaluate`` (CLEAR MOT of
+a tracks file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`.
 """
 
 from __future__ import annotations
@@ -57,7 +59,56 @@ def main(argv: list[str] | None = None) -> int:
     follow.add_argument("--batch-size", type=int, default=None)
     follow.add_argument("--out", type=Path, default=None, help="directory for plots and metrics")
     follow.add_argument("--seed", type=int, default=0)
+    trk = sub.add_parser("track", help="replay leg detection + a tracker on a ROS 1 / ROS 2 bag; "
+                                       "writes tracks.csv and top_view.png")
+    trk.add_argument("--bag", type=Path, required=True,
+                     help=".bag file or ROS 2 bag directory")
+    trk.add_argument("--laser-topic", required=True, help="sensor_msgs/LaserScan topic")
+    trk.add_argument("--detections-topic", default=None,
+                     help="geometry_msgs/PoseArray or people_msgs/PositionMeasurementArray "
+                          "topic (robot frame)")
+    trk.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic")
+    trk.add_argument("--estimator", choices=("gnn", "jpda", "nnjpda", "pf", "kf"),
+                     default="gnn")
+    trk.add_argument("--chunk", type=int, default=64, help="frames per compiled scan")
+    trk.add_argument("--max-detections", type=int, default=16)
+    trk.add_argument("--time-source", choices=("header", "bag"), default="header")
+    trk.add_argument("--seed", type=int, default=0)
+    trk.add_argument("--out", type=Path, required=True, help="output directory")
+    ev = sub.add_parser("evaluate", help="CLEAR MOT of a tracks file against ground truth")
+    ev.add_argument("--gt", type=Path, required=True,
+                    help="ground truth (obsmat.txt, frame id x y, or MOT CSV)")
+    ev.add_argument("--tracks", type=Path, required=True, help="tracks (MOT CSV)")
+    ev.add_argument("--threshold", type=float, default=0.5, help="match distance (m)")
+    ev.add_argument("--format", choices=("auto", "obsmat", "plain", "mot"), default="auto",
+                    help="format of both files (auto: sniffed)")
     args = parser.parse_args(argv)
+    if args.command == "track":
+        if args.chunk < 1 or args.max_detections < 1:
+            parser.error("--chunk and --max-detections must be positive")
+        if not args.bag.exists():
+            parser.error(f"--bag {args.bag} does not exist")
+        from jaxtrack.io import bags
+        from sims.following.replay import track_bag
+
+        try:
+            track_bag(args.bag, args.laser_topic, args.out,
+                      detections_topic=args.detections_topic, odom_topic=args.odom_topic,
+                      estimator=args.estimator, chunk=args.chunk,
+                      max_detections=args.max_detections, seed=args.seed,
+                      time_source=args.time_source)
+        except bags.BagError as err:
+            parser.exit(2, f"jaxtrack track: {err}\n")
+        return 0
+    if args.command == "evaluate":
+        if not args.threshold > 0:
+            parser.error("--threshold must be positive")
+        from jaxtrack.io import trajectories
+
+        result = trajectories.evaluate_files(args.gt, args.tracks, threshold=args.threshold,
+                                             fmt=args.format)
+        print(trajectories.format_clear_mot(result))
+        return 0
     if args.command == "demo":
         if args.episodes < 1 or args.steps < 1:
             parser.error("--episodes and --steps must be positive")

@@ -1,0 +1,326 @@
+"""ROS bags: records written with rosbags (ROS 1, ROS 2 sqlite3 and MCAP) read back equal, depth
+encodings and layouts decoded against NumPy, truncated bags read up to the cut, clear errors."""
+
+import os
+import shutil
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+from jaxtrack.io import bags  # noqa: E402
+
+T, B, M = 24, 40, 5
+DEPTH = "/camera/depth/image_raw"
+KINDS = [("ros1", 1, "sqlite3"), ("sqlite3", 2, "sqlite3"), ("mcap", 2, "mcap")]
+
+
+def _records(seed=0):
+    rng = np.random.default_rng(seed)
+    times = 1.7e9 + 0.1 * np.arange(T)
+    angles = np.linspace(-1.2, 1.2, B).astype(np.float32)
+    ranges = rng.uniform(0.05, 6.0, (T, B)).astype(np.float32)
+    mask = ranges < 5.6
+    ranges = np.where(mask, ranges, np.float32(5.6))
+    laser = bags.LaserScans(times, ranges, angles, mask, 0.02, 5.6, np.ones(T, bool))
+    pose = np.column_stack([rng.normal(size=(T, 2)), rng.uniform(-np.pi, np.pi, T)])
+    odom = bags.Odometry(times, pose, rng.normal(size=(T, 3)), np.ones(T, bool))
+    dmask = rng.uniform(size=(T, M)) < 0.6
+    xy = np.where(dmask[..., None], rng.normal(size=(T, M, 2)), 0.0)
+    det = bags.PersonDetections(times, xy, dmask, np.ones(T, bool))
+    dm = rng.uniform(size=(T, 3, 4)) < 0.8
+    depth = bags.DepthImages(times, np.where(dm, rng.uniform(0.5, 4.0, (T, 3, 4)), 0)
+                             .astype(np.float32), dm, np.ones(T, bool))
+    return laser, odom, det, depth
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bags")
+    recs = _records()
+    paths = {}
+    for name, version, storage in KINDS:
+        p = root / (f"{name}.bag" if version == 1 else name)
+        # Small ROS 1 chunks: the truncation test then cuts between and inside chunks.
+        bags.write_bag(p, version, laser=recs[0], odometry=recs[1], detections=recs[2],
+                       depth=recs[3], storage=storage, chunk_bytes=4096)
+        paths[name] = p
+    return recs, paths
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_roundtrip_equals_originals(written, kind):
+    (laser, odom, det, depth), paths = written
+    p = paths[kind]
+    got = bags.read_laser(p, "/scan")
+    # float32 in the message: ranges and the mask exactly; angles are rebuilt from angle_min and
+    # angle_increment, equal to float32 rounding; stamps to the nanosecond.
+    np.testing.assert_array_equal(got.ranges, laser.ranges)
+    np.testing.assert_array_equal(got.mask, laser.mask)
+    np.testing.assert_allclose(got.angles, laser.angles, rtol=0, atol=4e-7)
+    np.testing.assert_allclose(got.times, laser.times, rtol=0, atol=1e-6)
+    assert got.report.complete and got.report.messages == T
+    o = bags.read_odometry(p, "/odom")
+    # float64 messages: positions and twists exactly, yaw through the quaternion to 1e-12.
+    np.testing.assert_array_equal(o.pose[:, :2], odom.pose[:, :2])
+    np.testing.assert_allclose(o.pose[:, 2], odom.pose[:, 2], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(o.twist, odom.twist)
+    d = bags.read_detections(p, "/people", M)
+    for t in range(T):   # masked rows are left out when writing, so compare the sets in order
+        np.testing.assert_array_equal(d.xy[t][d.mask[t]], det.xy[t][det.mask[t]])
+    assert np.array_equal(d.mask.sum(1), det.mask.sum(1))
+    im = bags.read_depth(p, DEPTH)
+    np.testing.assert_array_equal(im.depth, depth.depth)   # 32FC1: float32 exactly
+    np.testing.assert_array_equal(im.mask, depth.mask)
+
+
+def test_topics_and_errors(written):
+    _, paths = written
+    p = paths["ros1"]
+    assert bags.topics(p) == {"/scan": bags.LASER_SCAN, "/odom": bags.ODOMETRY,
+                              "/people": bags.POSE_ARRAY, DEPTH: bags.IMAGE}
+    with pytest.raises(bags.BagError, match=r"'/nope'.*topics present: .*/odom .*/scan"):
+        bags.read_laser(p, "/nope")
+    with pytest.raises(bags.BagError, match="carries nav_msgs/msg/Odometry"):
+        bags.read_laser(p, "/odom")
+    with pytest.raises(FileNotFoundError):
+        bags.read_laser(p.parent / "missing.bag", "/scan")
+    with pytest.raises(ValueError, match="time_source"):
+        bags.read_laser(p, "/scan", time_source="wall")
+    assert bags.read_laser(paths["mcap"], "scan").report.topic == "/scan"  # leading slash
+
+
+def test_laser_invalid_ranges_masked_and_beam_change_reported(tmp_path):
+    laser, *_ = _records(1)
+    ranges = laser.ranges.copy()
+    ranges[0, :4] = [np.nan, np.inf, 0.01, 7.0]        # NaN, inf, below min, beyond max
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    msgs = list(bags._laser_messages(bags._MessageMaker(ts, 1),
+                                     laser._replace(ranges=ranges, mask=np.ones((T, B), bool)),
+                                     "laser"))
+    path = tmp_path / "raw.bag"
+    from rosbags.rosbag1 import Writer
+
+    with Writer(path) as w:
+        c = w.add_connection("/scan", bags.LASER_SCAN, typestore=ts)
+        for t, m in msgs:
+            w.write(c, t, ts.serialize_ros1(m, bags.LASER_SCAN))
+    got = bags.read_laser(path, "/scan", max_beams=B + 3)
+    assert got.ranges.shape == (T, B + 3) and got.angles.shape == (B + 3,)
+    assert not got.mask[0, :4].any() and np.all(got.ranges[0, :4] == np.float32(5.6))
+    assert not got.mask[:, B:].any() and np.all(got.ranges[:, B:] == np.float32(5.6))
+    np.testing.assert_allclose(np.diff(got.angles), np.diff(got.angles)[0], atol=1e-6)
+    with pytest.raises(bags.BagError, match="max_beams"):
+        bags.read_laser(path, "/scan", max_beams=B - 1)
+    # One scan with a different beam count: the error names the message.
+    path2 = tmp_path / "change.bag"
+    with Writer(path2) as w:
+        c = w.add_connection("/scan", bags.LASER_SCAN, typestore=ts)
+        for i, (t, m) in enumerate(msgs[:5]):
+            if i == 3:
+                m.ranges = m.ranges[:-2]
+            w.write(c, t, ts.serialize_ros1(m, bags.LASER_SCAN))
+    with pytest.raises(bags.BagError, match=f"message 3 has {B - 2} beams"):
+        bags.read_laser(path2, "/scan")
+
+
+def _image_bag(path, images, version=1):
+    """Images given as (encoding, is_bigendian, step, height, width, data bytes)."""
+    ts = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
+    mk = bags._MessageMaker(ts, version)
+    Image = ts.types[bags.IMAGE]
+    if version == 1:
+        from rosbags.rosbag1 import Writer
+
+        w = Writer(path)
+        ser = ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+
+        w = Writer(path, version=9)
+        ser = ts.serialize_cdr
+    with w:
+        c = w.add_connection(DEPTH, bags.IMAGE, typestore=ts)
+        for i, (enc, big, step, h, wd, data) in enumerate(images):
+            t = 10**9 * (i + 1)
+            m = Image(header=mk.header(t, "cam", i), height=h, width=wd, encoding=enc,
+                      is_bigendian=big, step=step, data=np.frombuffer(data, np.uint8))
+            w.write(c, t, ser(m, bags.IMAGE))
+    return path
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_depth_encodings_endianness_and_row_step(tmp_path, version):
+    rng = np.random.default_rng(2)
+    H, W, pad = 3, 5, 6
+    mm = rng.integers(0, 5000, (H, W)).astype(np.uint16)
+    mm[0, 0] = 0                                                    # no depth
+    metres = rng.uniform(0.3, 5.0, (H, W)).astype(np.float32)
+    metres[1, 2] = np.nan
+
+    def padded(a):  # rows padded with `pad` junk bytes: the step must be honoured
+        rows = a.view(np.uint8).reshape(H, -1)
+        return np.concatenate([rows, np.full((H, pad), 0xAB, np.uint8)], 1).tobytes()
+
+    imgs = [("16UC1", 0, W * 2 + pad, H, W, padded(mm.astype("<u2"))),
+            ("16UC1", 1, W * 2, H, W, mm.astype(">u2").tobytes()),
+            ("32FC1", 0, W * 4 + pad, H, W, padded(metres.astype("<f4"))),
+            ("32FC1", 1, W * 4, H, W, metres.astype(">f4").tobytes())]
+    path = tmp_path / ("d.bag" if version == 1 else "d2")
+    got = bags.read_depth(_image_bag(path, imgs, version), DEPTH)
+    ref_mm = (mm.astype(np.float64) * 1e-3).astype(np.float32)
+    for i in (0, 1):
+        np.testing.assert_array_equal(got.depth[i], np.where(mm > 0, ref_mm, 0))
+        np.testing.assert_array_equal(got.mask[i], mm > 0)
+    for i in (2, 3):
+        np.testing.assert_array_equal(got.depth[i], np.nan_to_num(metres, nan=0.0))
+        np.testing.assert_array_equal(got.mask[i], np.isfinite(metres))
+    bad = _image_bag(tmp_path / ("e.bag" if version == 1 else "e2"),
+                     [("32FC1", 0, W * 4, H, W, metres.tobytes()),
+                      ("rgb8", 0, W * 3, H, W, bytes(H * W * 3))], version)
+    with pytest.raises(bags.BagError, match="image 1: depth encoding 'rgb8' is not supported"):
+        bags.read_depth(bad, DEPTH)
+    with pytest.raises(bags.BagError, match="depth encoding 'mono8'"):
+        bags.write_bag(tmp_path / "x.bag", 1, depth=got, depth_encoding="mono8")
+
+
+def test_depth_16uc1_writer_rounds_to_millimetres(tmp_path):
+    *_, depth = _records(3)
+    got = bags.read_depth(bags.write_bag(tmp_path / "mm.bag", 1, depth=depth,
+                                         depth_encoding="16UC1"), DEPTH)
+    np.testing.assert_array_equal(got.mask, depth.mask)
+    np.testing.assert_allclose(got.depth, depth.depth, atol=5e-4 + 1e-7)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_people_msgs_registered_and_read(tmp_path, version):
+    _, _, det, _ = _records(4)
+    ts = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
+    assert bags.POSITION_MEASUREMENT_ARRAY not in ts.types
+    with pytest.raises(bags.BagError, match="register_people_msgs"):
+        bags.write_bag(tmp_path / "a.bag", version, detections=det, typestore=ts,
+                       detections_type=bags.POSITION_MEASUREMENT_ARRAY)
+    assert bags.register_people_msgs(ts) is ts
+    fields = ts.types[bags.POSITION_MEASUREMENT].__dataclass_fields__
+    assert {"name", "object_id", "pos", "reliability", "covariance"} <= set(fields)
+    path = tmp_path / ("p.bag" if version == 1 else "p2")
+    bags.write_bag(path, version, detections=det, typestore=ts,
+                   detections_type=bags.POSITION_MEASUREMENT_ARRAY)
+    assert bags.topics(path)["/people"] == bags.POSITION_MEASUREMENT_ARRAY
+    got = bags.read_detections(path, "/people", 3)     # fewer slots than some messages hold
+    for t in range(T):
+        keep = det.xy[t][det.mask[t]][:3]
+        np.testing.assert_array_equal(got.xy[t][got.mask[t]], keep)
+    dropped = int(np.maximum(det.mask.sum(1) - 3, 0).sum())
+    assert dropped > 0 and f"{dropped} detections beyond" in got.report.detail
+
+
+def _cut(src, dst, fraction):
+    if src.is_dir():
+        shutil.copytree(src, dst)
+        f = next(x for x in dst.iterdir() if x.suffix in (".db3", ".mcap"))
+    else:
+        shutil.copy(src, dst)
+        f = dst
+    size = os.path.getsize(f)
+    os.truncate(f, int(size * fraction))
+    return dst
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_truncated_bag_reads_prefix_and_reports(written, tmp_path, kind):
+    (laser, *_), paths = written
+    cut = _cut(paths[kind], tmp_path / paths[kind].name, 0.75)
+    with pytest.warns(bags.BagWarning, match="unreadable"):
+        got = bags.read_laser(cut, "/scan")
+    n = got.report.messages
+    assert 0 < n < T and got.ranges.shape == (n, B)
+    assert not got.report.complete and got.report.stopped_at is not None
+    assert "record by record" in got.report.detail or "row by row" in got.report.detail
+    # What was read is what was written (a prefix for the sequential formats).
+    idx = np.searchsorted(laser.times, got.times - 1e-6)
+    np.testing.assert_array_equal(got.ranges, laser.ranges[idx])
+    if kind != "ros1":  # ROS 2 metadata says how many messages the bag held
+        assert got.report.unreadable == T - n
+    else:               # ROS 1 keeps its counts in the lost index
+        assert got.report.unreadable == -1 and np.array_equal(idx, np.arange(n))
+    with pytest.raises(bags.BagError, match="topics present"):
+        bags.read_laser(cut, "/nope")
+
+
+def test_unrecoverable_bag_is_a_clear_error(tmp_path):
+    p = tmp_path / "junk.bag"
+    p.write_bytes(b"not a bag at all\n" * 4)
+    with pytest.raises(bags.BagError, match="not a ROS 1 bag"):
+        bags.read_laser(p, "/scan")
+
+
+def test_resample_against_brute_force():
+    rng = np.random.default_rng(5)
+    t = np.sort(rng.uniform(0.0, 3.0, 40))
+    x = rng.normal(size=(40, 2))
+    rate = 7.0
+    for method in ("bucket", "nearest"):
+        grid, valid, (y,) = bags.resample(t, x, rate=rate, method=method)
+        np.testing.assert_allclose(grid, t[0] + np.arange(len(grid)) / rate)
+        for k, g in enumerate(grid):
+            if method == "bucket":
+                inside = np.flatnonzero((t >= g - 1e-12) & (t < g + 1 / rate - 1e-12))
+                want = inside[-1] if inside.size else None
+            else:
+                j = int(np.argmin(np.abs(t - g)))
+                want = j if abs(t[j] - g) <= 0.5 / rate else None
+            assert valid[k] == (want is not None)
+            np.testing.assert_array_equal(y[k], x[want] if want is not None else 0.0)
+    with pytest.raises(ValueError, match="non-decreasing"):
+        bags.resample(t[::-1], x, rate=1.0)
+    with pytest.raises(ValueError, match="rate"):
+        bags.resample(t, x, rate=0.0)
+    with pytest.raises(ValueError, match="method"):
+        bags.resample(t, x, rate=1.0, method="linear")
+    with pytest.raises(ValueError, match="rows"):
+        bags.resample(t, x[:3], rate=1.0)
+
+
+def test_reader_rate_masks_empty_slots(written):
+    (laser, odom, *_), paths = written
+    # 25 Hz clock over 10 Hz scans: some slots are empty, every scan lands in one slot.
+    got = bags.read_laser(paths["ros1"], "/scan", rate=25.0)
+    assert got.valid.sum() == T and (~got.valid).sum() > 0
+    assert not got.mask[~got.valid].any() and np.all(got.ranges[~got.valid] == np.float32(5.6))
+    np.testing.assert_array_equal(got.ranges[got.valid], laser.ranges)
+    o = bags.read_odometry(paths["sqlite3"], "/odom", rate=5.0, method="nearest")
+    np.testing.assert_array_equal(o.pose[o.valid][:, :2], odom.pose[::2][:, :2])
+
+
+def test_time_source_bag(written):
+    (laser, *_), paths = written
+    got = bags.read_laser(paths["mcap"], "/scan", time_source="bag")
+    np.testing.assert_allclose(got.times, laser.times, atol=1e-6)
+
+
+def test_missing_rosbags_says_how_to_install(monkeypatch, written):
+    _, paths = written
+    for name in list(sys.modules):
+        if name == "rosbags" or name.startswith("rosbags."):
+            monkeypatch.setitem(sys.modules, name, None)
+    with pytest.raises(ImportError, match=r'pip install "jaxtrack\[ros\]"'):
+        bags.read_laser(paths["ros1"], "/scan")
+
+
+def test_write_bag_checks_arguments(tmp_path):
+    laser, *_ = _records()
+    with pytest.raises(ValueError, match="version"):
+        bags.write_bag(tmp_path / "a.bag", 3, laser=laser)
+    with pytest.raises(ValueError, match="nothing to write"):
+        bags.write_bag(tmp_path / "a.bag", 1)
+    with pytest.raises(ValueError, match="storage"):
+        bags.write_bag(tmp_path / "a", 2, laser=laser, storage="rosbag3")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bags.write_bag(tmp_path / "a.bag", 1, laser=laser)
