@@ -73,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--chunk", type=int, default=64, help="frames per compiled scan")
     trk.add_argument("--max-detections", type=int, default=16)
     trk.add_argument("--time-source", choices=("header", "bag"), default="header")
+    trk.add_argument("--static-points", type=Path, default=None,
+                     help="text file of 'x y' rows (odometry frame): table and chair legs "
+                          "from a map; laser people within 0.3 m of one are dropped")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", type=Path, required=True, help="output directory")
     ev = sub.add_parser("evaluate", help="CLEAR MOT of a tracks file against ground truth")
@@ -96,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
                       detections_topic=args.detections_topic, odom_topic=args.odom_topic,
                       estimator=args.estimator, chunk=args.chunk,
                       max_detections=args.max_detections, seed=args.seed,
-                      time_source=args.time_source)
+                      time_source=args.time_source, static_points=args.static_points)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         return 0

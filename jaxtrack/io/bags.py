@@ -47,6 +47,7 @@ import numpy as np
 __all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagReport",
            "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry",
            "read_detections", "resample", "register_people_msgs", "write_bag", "topics",
+           "beam_angles",
            "LASER_SCAN", "IMAGE", "ODOMETRY", "POSE_ARRAY", "POSITION_MEASUREMENT_ARRAY"]
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
@@ -237,10 +238,9 @@ def read_laser(path, topic: str, *, max_beams: int | None = None, rate: float | 
         ok = np.isfinite(r) & (r >= m.range_min) & (r < m.range_max)
         ranges[i, :beams] = np.where(ok, r, np.float32(rmax))
         mask[i, :beams] = ok
-    k = np.arange(width, dtype=np.float64)
-    angles = (np.float64(first.angle_min) + k * np.float64(first.angle_increment))
+    angles = beam_angles(first.angle_min, first.angle_increment, width)
     times = np.array([t for t, _ in msgs], np.float64)
-    out = LaserScans(times, ranges, angles.astype(np.float32), mask, rmin, rmax,
+    out = LaserScans(times, ranges, angles, mask, rmin, rmax,
                      np.ones(T, bool), report)
     if rate is None:
         return out
@@ -354,6 +354,22 @@ def read_detections(path, topic: str, max_detections: int, *, rate: float | None
         return out
     grid, valid, (xy, mask) = resample(times, xy, mask, rate=rate, method=method)
     return out._replace(times=grid, xy=xy, mask=mask, valid=valid)
+
+
+def beam_angles(angle_min, angle_increment, num_beams: int) -> np.ndarray:
+    """Beam angles [B] float32 of a ``LaserScan``: ``angle_min + k * angle_increment``
+    (float32 message fields, summed in float64).
+
+    `write_bag` stores ``angle_min = angles[0]`` and the mean increment, so angles made by this
+    function round-trip exactly; others to float32 rounding.
+
+    Example:
+      >>> beam_angles(-2.0944, 0.0062832, 667)
+    """
+    k = np.arange(int(num_beams), dtype=np.float64)
+    a0 = np.float64(np.float32(angle_min))
+    inc = np.float64(np.float32(angle_increment))
+    return (a0 + k * inc).astype(np.float32)
 
 
 def topics(path, *, typestore=None) -> dict[str, str]:

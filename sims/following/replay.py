@@ -185,7 +185,8 @@ def record(key: Array, scene=None, **kw) -> Recording:
 
 def to_records(rec: Recording, laser: lidar.LaserConfig = lidar.LaserConfig()):
     """``(bags.LaserScans, bags.Odometry, bags.PersonDetections)`` of a recording, as
-    `jaxtrack.io.bags` reads them back (ranges float32, beams at ``max_range`` masked).
+    `jaxtrack.io.bags` reads them back (ranges float32, beams at ``max_range`` masked, angles
+    from the first angle and the mean increment: within 1e-6 rad of the simulation's).
 
     Example:
       >>> bags.write_bag("sim.bag", 1, **dict(zip(("laser", "odometry", "detections"),
@@ -196,8 +197,12 @@ def to_records(rec: Recording, laser: lidar.LaserConfig = lidar.LaserConfig()):
     ranges = np.asarray(rec.ranges, np.float32)
     rmax, rmin = np.float32(laser.max_range), np.float32(laser.min_range)
     mask = np.isfinite(ranges) & (ranges >= rmin) & (ranges < rmax)
-    scans = bags.LaserScans(times, np.where(mask, ranges, rmax), np.asarray(rec.angles,
-                            np.float32), mask, float(rmin), float(rmax), np.ones(T, bool))
+    # The beam angles as a LaserScan carries them (angle_min + k * increment, float32), so
+    # that the records equal what a bag gives back.
+    a = np.asarray(rec.angles, np.float64)
+    angles = bags.beam_angles(a[0], (a[-1] - a[0]) / (a.shape[0] - 1), a.shape[0])
+    scans = bags.LaserScans(times, np.where(mask, ranges, rmax), angles, mask, float(rmin),
+                            float(rmax), np.ones(T, bool))
     odom = bags.Odometry(times, np.asarray(rec.odom_pose, np.float64),
                          np.asarray(rec.odom_twist, np.float64), np.ones(T, bool))
     dmask = np.asarray(rec.det_mask, bool)
@@ -233,8 +238,9 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
           chunk: int = 64, key: Array | None = None, user_xy=None,
           config: estimators.EstimatorConfig | None = None, params=None,
           leg_params: legs.LegParams = legs.LegParams(), laser_mount=(0.0, 0.0),
-          max_segments: int = 48, max_laser_people: int = 8, dtype=jnp.float32,
-          progress: bool = True, stream=None) -> Tracks:
+          max_segments: int = 48, max_laser_people: int = 8, static_xy=None,
+          static_radius: float = 0.3, dtype=jnp.float32, progress: bool = True,
+          stream=None) -> Tracks:
     """Run leg detection + an estimator over recorded scans, in chunks of ``chunk`` frames.
 
     Per frame (as in `sims.following.episode`, without the controller): the odometry increment
@@ -255,6 +261,9 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         ``estimator`` and the frame period).
       leg_params, laser_mount, max_segments, max_laser_people: the leg detector and the laser's
         (x, y) on the robot.
+      static_xy: [F, 2] known leg-like fixed objects (table and chair legs) in the odometry
+        frame, from a map: laser people within ``static_radius`` of one are dropped (the
+        episode's ``map_filter``; furniture legs 0.3-0.5 m apart do look like a person's legs).
       progress: print a progress bar to ``stream`` (stderr).
 
     Returns:
@@ -306,6 +315,10 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     ranges = np.where(np.isfinite(ranges), ranges, leg_params.max_range).astype(np_dtype)
     if user_xy is None:
         user_xy = _first_user(ranges[0], angles.astype(np_dtype), pose[0], static)
+    static_xy = np.zeros((0, 2)) if static_xy is None else np.asarray(static_xy, np.float64)
+    if static_xy.ndim != 2 or static_xy.shape[1] != 2:
+        raise ValueError(f"static_xy must be [F, 2]; got shape {static_xy.shape}")
+    statics = (jnp.asarray(static_xy, dtype), jnp.asarray(static_radius, dtype))
     run = _chunk_runner(static)
     carry = _init(key, params, jnp.asarray(user_xy, dtype), jnp.asarray(pose[0], dtype),
                   max_segments, dtype)
@@ -319,7 +332,7 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         xs = (jnp.asarray(ranges[sl]), jnp.asarray(pose[sl], dtype),
               jnp.asarray(dxy[sl], dtype), jnp.asarray(dmask[sl] & (idx < T)[:, None]),
               jnp.asarray(idx < T), jnp.asarray(idx, jnp.int32))
-        carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype))
+        carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype), statics)
         outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
         if progress:
             _bar(start + n, T, time.perf_counter() - t0, stream)
@@ -378,7 +391,9 @@ def _chunk_runner(static: _Static):
     lp = legs.LegParams(*static.leg_params)
     dt = static.dt
 
-    def run(carry, xs, params, key, angles):
+    def run(carry, xs, params, key, angles, statics):
+        static_xy, static_radius = statics
+
         def frame(c, x):
             est, prev_legs, prev_mask, prev_pose = c
             ranges, pose, dxy, dmask, valid, index = x
@@ -389,8 +404,10 @@ def _chunk_runner(static: _Static):
             det = legs.detect(ranges, angles, lp, max_segments=static.max_segments,
                               max_people=static.max_people, prev_legs=(prev, prev_mask))
             laser_xy = estimators.from_frame(lpose, det.people.xy.astype(pose.dtype))
+            d2 = jnp.sum((laser_xy[:, None] - static_xy[None]) ** 2, -1)
+            laser_mask = det.people.mask & ~jnp.any(d2 < static_radius**2, 1)
             K = dxy.shape[0]
-            detected = estimators.Detected(laser_xy, det.people.mask,
+            detected = estimators.Detected(laser_xy, laser_mask,
                                            estimators.from_frame(pose, dxy), dmask,
                                            jnp.zeros((K, 3), pose.dtype))
             new_est, e = estimators.update(jax.random.fold_in(key, index), est, detected, pose,
@@ -422,9 +439,11 @@ def _bar(done, total, seconds, stream=None):
 def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,
               odom_topic: str | None = None, estimator: str = "gnn", chunk: int = 64,
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
-              stream=sys.stdout) -> dict:
+              static_points=None, stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
+    ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
+    (`track`'s ``static_xy``).
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -441,8 +460,11 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
             if odom_topic else None)
     det = (bags.read_detections(bag, detections_topic, max_detections, time_source=time_source)
            if detections_topic else None)
+    static_xy = (np.loadtxt(static_points, ndmin=2).reshape(-1, 2)
+                 if static_points is not None else None)
     t0 = time.perf_counter()
-    tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed))
+    tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed),
+                   static_xy=static_xy)
     seconds = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

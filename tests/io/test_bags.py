@@ -23,7 +23,7 @@ KINDS = [("ros1", 1, "sqlite3"), ("sqlite3", 2, "sqlite3"), ("mcap", 2, "mcap")]
 def _records(seed=0):
     rng = np.random.default_rng(seed)
     times = 1.7e9 + 0.1 * np.arange(T)
-    angles = np.linspace(-1.2, 1.2, B).astype(np.float32)
+    angles = bags.beam_angles(-1.2, 2.4 / (B - 1), B)
     ranges = rng.uniform(0.05, 6.0, (T, B)).astype(np.float32)
     mask = ranges < 5.6
     ranges = np.where(mask, ranges, np.float32(5.6))
@@ -58,11 +58,11 @@ def test_roundtrip_equals_originals(written, kind):
     (laser, odom, det, depth), paths = written
     p = paths[kind]
     got = bags.read_laser(p, "/scan")
-    # float32 in the message: ranges and the mask exactly; angles are rebuilt from angle_min and
-    # angle_increment, equal to float32 rounding; stamps to the nanosecond.
+    # float32 in the message: ranges and the mask exactly; angles made by beam_angles exactly;
+    # stamps to the nanosecond.
     np.testing.assert_array_equal(got.ranges, laser.ranges)
     np.testing.assert_array_equal(got.mask, laser.mask)
-    np.testing.assert_allclose(got.angles, laser.angles, rtol=0, atol=4e-7)
+    np.testing.assert_array_equal(got.angles, laser.angles)
     np.testing.assert_allclose(got.times, laser.times, rtol=0, atol=1e-6)
     assert got.report.complete and got.report.messages == T
     o = bags.read_odometry(p, "/odom")
@@ -324,3 +324,11 @@ def test_write_bag_checks_arguments(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         bags.write_bag(tmp_path / "a.bag", 1, laser=laser)
+
+
+def test_other_angles_roundtrip_to_float32_rounding(tmp_path):
+    laser, *_ = _records()
+    angles = np.linspace(-2.0944, 2.0944, B).astype(np.float32)
+    got = bags.read_laser(bags.write_bag(tmp_path / "a.bag", 1,
+                                         laser=laser._replace(angles=angles)), "/scan")
+    np.testing.assert_allclose(got.angles, angles, rtol=0, atol=4 * np.finfo(np.float32).eps)

@@ -1,0 +1,190 @@
+"""Replay on recorded data: a simulated person-following recording written as ROS 1 and ROS 2
+bags reads back equal, the tracker's output from the bag equals its output from memory and
+follows the true user, chunking does not change it, and the command line writes a MOT CSV."""
+
+import io
+from contextlib import redirect_stdout
+
+import jax
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+
+from jaxtrack.io import bags, trajectories  # noqa: E402
+from sims import cli  # noqa: E402
+from sims.following import estimators, lidar, replay, scene  # noqa: E402
+
+DURATION = 3.0
+CHUNK = 16
+
+
+@pytest.fixture(scope="module")
+def recording():
+    sc = scene.build(num_people=4)
+    rec = replay.record(jax.random.PRNGKey(2), sc, distractors=3, duration=DURATION)
+    return sc, rec, replay.to_records(rec)
+
+
+@pytest.fixture(scope="module")
+def written(recording, tmp_path_factory):
+    _, _, (laser, odom, det) = recording
+    root = tmp_path_factory.mktemp("replay")
+    paths = {"ros1": root / "run.bag", "ros2": root / "run"}
+    bags.write_bag(paths["ros1"], 1, laser=laser, odometry=odom, detections=det)
+    bags.write_bag(paths["ros2"], 2, laser=laser, odometry=odom, detections=det)
+    return paths
+
+
+def _furniture(sc):
+    # The robot's map of table and chair legs (odometry frame = world frame at the start).
+    return sc.furniture_circles()[0]
+
+
+@pytest.fixture(scope="module")
+def memory_tracks(recording):
+    sc, _, (laser, odom, det) = recording
+    return replay.track(laser, odom, det, "gnn", chunk=CHUNK, progress=False,
+                        static_xy=_furniture(sc))
+
+
+def _read(path, M):
+    return (bags.read_laser(path, "/scan"), bags.read_odometry(path, "/odom"),
+            bags.read_detections(path, "/people", M))
+
+
+def test_recording_sensors_agree_with_the_truth(recording):
+    _, rec, _ = recording
+    T = int(round(DURATION / 0.1))
+    assert rec.ranges.shape == (T, lidar.LaserConfig().num_beams)
+    np.testing.assert_allclose(rec.times, 0.1 * np.arange(1, T + 1))
+    # Odometry drifts little over 3 s.
+    drift = np.linalg.norm(rec.odom_pose[:, :2] - rec.robot[:, :2], axis=-1)
+    assert drift.max() < 0.3
+    # The laser sees the user's legs: returns within 0.3 m of the user in most frames.
+    pts = []
+    for t in range(T):
+        ok = rec.ranges[t] < lidar.LaserConfig().max_range
+        world = estimators.from_frame(rec.robot[t], np.stack(
+            [rec.ranges[t] * np.cos(rec.angles), rec.ranges[t] * np.sin(rec.angles)], -1))
+        pts.append(np.any(ok & (np.linalg.norm(np.asarray(world) - rec.people[t, 0], axis=-1)
+                                < 0.3)))
+    assert np.mean(pts) > 0.8
+    # RGB-D detections (robot frame) lie near true people, up to clutter and 0.3 m noise.
+    near = []
+    for t in range(T):
+        w = np.asarray(estimators.from_frame(rec.robot[t], rec.det_xy[t][rec.det_mask[t]]))
+        d = np.linalg.norm(w[:, None] - rec.people[t][None], axis=-1).min(1)
+        near.extend(d < 1.2)
+    assert len(near) > T and np.mean(near) > 0.8
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_bag_arrays_equal_the_recording(recording, written, kind):
+    _, rec, (laser, odom, det) = recording
+    got_l, got_o, got_d = _read(written[kind], det.xy.shape[1])
+    # LaserScan ranges are float32 like the simulation: exact. The angles are those of the
+    # records (first angle + k * increment, exact), within float32 rounding of the simulation's.
+    np.testing.assert_array_equal(got_l.ranges, laser.ranges)
+    np.testing.assert_array_equal(got_l.mask, rec.ranges < lidar.LaserConfig().max_range)
+    np.testing.assert_array_equal(got_l.angles, laser.angles)
+    np.testing.assert_allclose(got_l.angles, rec.angles, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got_l.times, rec.times, rtol=0, atol=1e-9)
+    # Odometry is float64 in the message: the float32 simulation values exactly (yaw through
+    # the quaternion to 1e-12).
+    np.testing.assert_array_equal(got_o.pose[:, :2], rec.odom_pose[:, :2])
+    np.testing.assert_allclose(got_o.pose[:, 2], rec.odom_pose[:, 2], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got_o.twist, rec.odom_twist)
+    assert np.array_equal(got_d.mask.sum(1), rec.det_mask.sum(1))
+    for t in range(len(rec.times)):
+        np.testing.assert_array_equal(got_d.xy[t][got_d.mask[t]], rec.det_xy[t][rec.det_mask[t]])
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_tracker_from_bag_equals_in_memory_and_follows_the_user(recording, written,
+                                                                memory_tracks, kind):
+    sc, rec, (_, _, det) = recording
+    got = replay.track(*_read(written[kind], det.xy.shape[1]), "gnn", chunk=CHUNK,
+                       progress=False, static_xy=_furniture(sc))
+    for name in ("ids", "pos", "mask", "user", "user_found", "frames"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(memory_tracks, name), name)
+    # Independent check against the truth: the user estimate sits on the user (odometry frame
+    # = world frame at the start, drifting by less than 0.3 m, see above).
+    err = np.linalg.norm(memory_tracks.user - rec.people[:, 0], axis=-1)
+    assert np.median(err) < 0.3
+    # Confirmed tracks are mostly on true people (furniture legs are filtered by the map).
+    pos, mask = memory_tracks.pos, memory_tracks.mask
+    d = np.linalg.norm(pos[:, :, None] - rec.people[:, None], axis=-1).min(-1)
+    assert np.mean(d[mask] < 0.5) > 0.7
+
+
+def test_chunking_does_not_change_the_output(recording, memory_tracks):
+    sc, _, (laser, odom, det) = recording
+    # 30 frames in chunks of 7: four full chunks and a padded one, state carried across.
+    got = replay.track(laser, odom, det, "gnn", chunk=7, progress=False,
+                       static_xy=_furniture(sc))
+    for name in ("ids", "pos", "mask", "user", "user_found"):
+        np.testing.assert_allclose(getattr(got, name), getattr(memory_tracks, name),
+                                   rtol=0, atol=1e-6, err_msg=name)
+
+
+def test_track_rejects_bad_arguments(recording):
+    _, _, (laser, odom, det) = recording
+    with pytest.raises(ValueError, match="estimator"):
+        replay.track(laser, odom, det, "kcf", progress=False)
+    with pytest.raises(ValueError, match="chunk"):
+        replay.track(laser, odom, det, "gnn", chunk=0, progress=False)
+    with pytest.raises(ValueError, match="no laser scan"):
+        replay.track(laser._replace(valid=np.zeros_like(laser.valid)), progress=False)
+
+
+def test_cli_track_writes_a_mot_csv_and_evaluate_prints_clear_mot(recording, written,
+                                                                  memory_tracks, tmp_path,
+                                                                  capsys):
+    sc, rec, (_, _, det) = recording
+    out = tmp_path / "out"
+    furniture = tmp_path / "furniture.txt"
+    np.savetxt(furniture, _furniture(sc))
+    code = cli.main(["track", "--bag", str(written["ros1"]), "--laser-topic", "/scan",
+                     "--odom-topic", "/odom", "--detections-topic", "/people",
+                     "--max-detections", str(det.xy.shape[1]), "--estimator", "gnn",
+                     "--chunk", str(CHUNK), "--static-points", str(furniture),
+                     "--out", str(out)])
+    assert code == 0
+    assert (out / "top_view.png").stat().st_size > 0
+    csv = trajectories.read_mot_csv(out / "tracks.csv")
+    t = memory_tracks
+    want = sorted((int(f), int(i), x, y) for f, ids, pos, m in zip(t.frames, t.ids, t.pos,
+                                                                   t.mask)
+                  for i, (x, y), k in zip(ids, pos, m) if k)
+    have = sorted((int(f), int(i), x, y) for f, ids, pos, m in zip(csv.frames, csv.ids,
+                                                                   csv.pos, csv.mask)
+                  for i, (x, y), k in zip(ids, pos, m) if k)
+    assert [w[:2] for w in want] == [h[:2] for h in have]
+    np.testing.assert_allclose([h[2:] for h in have], [w[2:] for w in want], atol=1e-5)
+    # Ground truth of the recording in the same layout, then `jaxtrack evaluate`.
+    gt = tmp_path / "gt.csv"
+    P = rec.people.shape[1]
+    trajectories.write_mot_csv(gt, t.frames, np.broadcast_to(np.arange(P), (len(t.frames), P)),
+                               rec.people, rec.people_mask)
+    capsys.readouterr()
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        assert cli.main(["evaluate", "--gt", str(gt), "--tracks", str(out / "tracks.csv"),
+                         "--threshold", "0.5"]) == 0
+    expected = trajectories.format_clear_mot(
+        trajectories.evaluate_files(gt, out / "tracks.csv", threshold=0.5))
+    assert buf.getvalue().strip() == expected.strip()
+
+
+def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/base_scan",
+                  "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "'/base_scan'" in err and "/scan (sensor_msgs/msg/LaserScan)" in err
+    with pytest.raises(SystemExit):
+        cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/scan",
+                  "--estimator", "kcf", "--out", str(tmp_path)])
+    assert "invalid choice: 'kcf'" in capsys.readouterr().err
