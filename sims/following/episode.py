@@ -77,6 +77,8 @@ class EpisodeConfig:
         work in the drifting odometry frame).
       lost_timeout: after this long (s) without a measurement of the user, the controller
         assumes the user stands still.
+      reverse: allow the robot to drive backwards (its laser sees 240 deg to the front, nothing
+        behind: by default it never reverses, and turns instead).
       dtype: float dtype of the estimators and metrics.
     """
 
@@ -95,6 +97,7 @@ class EpisodeConfig:
     map_filter: bool = True
     map_filter_radius: float = 0.3
     lost_timeout: float = 1.0
+    reverse: bool = False
     dtype: object = jnp.float32
 
     @property
@@ -230,8 +233,12 @@ def make_rollout(config: EpisodeConfig):
         people = pedestrians.init(k_init, pcfg, P, dtype)
         pose0 = pedestrians.robot_start(pcfg, people).astype(dtype)
         data = scene_mod.reset(sc, pose0)
-        est = estimators.init(k_est, params.estimator, people.pos[0], pose0)
+        k_col, k_shown = jax.random.split(k_col)
         colours = jax.random.uniform(k_col, (P, 3), dtype)
+        # The robot is shown its user: one look at them gives their colour feature.
+        shown = jnp.clip(colours[0] + config.rgbd.colour_std
+                         * jax.random.normal(k_shown, (3,), dtype), 0.0, 1.0)
+        est = estimators.init(k_est, params.estimator, people.pos[0], pose0, shown)
         S = config.max_segments
         carry = _Carry(data, people, pose0, pose0, est, jnp.zeros(2, dtype),
                        jnp.zeros((S, 2), dtype), jnp.zeros(S, bool), jnp.zeros((), dtype),
@@ -282,7 +289,8 @@ def make_rollout(config: EpisodeConfig):
             # The safety stop blocks forward motion only (backing away stays possible); a user
             # unseen for longer than lost_timeout is searched for by turning on the spot.
             lost_now = unseen > config.lost_timeout
-            u = jnp.stack([jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0]), u[1]])
+            v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
+            u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), u[1]])
             # Metrics (world frame).
             user = people.pos[0]
             fp = estimators.from_frame(pose, params.follower.point)

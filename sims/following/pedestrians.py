@@ -114,6 +114,9 @@ class PedestrianConfig(NamedTuple):
       cross_prob: probability that a distractor's next waypoint crosses the user's path.
       max_turn_rate: heading rate limit (rad/s).
       robot_start_distance: the robot starts this far behind the user (`robot_start`).
+      user_wait: ``(near, far)`` distances (m) between the user and the robot: beyond ``near``
+        the user slows down linearly, and at ``far`` they stand and wait for their robot, as
+        the user of a following robot does; ``None``: the user ignores the robot.
       gait: `GaitParams`.
     """
 
@@ -143,6 +146,7 @@ class PedestrianConfig(NamedTuple):
     cross_prob: float = 0.5
     max_turn_rate: float = 4.0
     robot_start_distance: float = 1.2
+    user_wait: tuple | None = (3.0, 4.5)
     gait: GaitParams = GaitParams()
 
 
@@ -394,6 +398,11 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
     # --- social forces ---------------------------------------------------------------------
     to_goal, _ = _unit(goal - pos)
     preferred = jnp.where((stop_timer > 0.0)[:, None], 0.0, speed[:, None] * to_goal)
+    if cfg.user_wait is not None:
+        near_w, far_w = cfg.user_wait
+        gap = jnp.linalg.norm(pos[0] - robot_xy)
+        slow = jnp.clip((far_w - gap) / (far_w - near_w), 0.0, 1.0)
+        preferred = preferred.at[0].multiply(slow)
     force = (preferred - vel) / cfg.relax_time
     pair = mask[:, None] & mask[None, :] & ~jnp.eye(P, dtype=bool)
     force += _repulsion(pos, pos[None], state.heading, cfg.social_strength, cfg.social_range,

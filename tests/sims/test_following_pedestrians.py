@@ -8,7 +8,8 @@ import pytest
 from sims.following import pedestrians as pd
 
 OBSTACLES = np.array([[-2.5, 1.6, 1.0], [2.5, -1.6, 1.0]])
-CFG = pd.PedestrianConfig(obstacles=OBSTACLES, distractors=4)
+# The robot stands still in these scenarios, so the user does not wait for it.
+CFG = pd.PedestrianConfig(obstacles=OBSTACLES, distractors=4, user_wait=None)
 ROBOT = jnp.array([0.0, 0.5, 0.0])
 STEPS = 400  # 40 s at 10 Hz
 KEYS = 8
@@ -39,7 +40,21 @@ def _single(cfg, pos, goal, heading=0.0, steps=STEPS, robot=(50.0, 50.0, 0.0), d
 
 
 CORRIDOR = pd.PedestrianConfig(room=(40.0, 6.0), distractors=0, speed_range=(1.2, 1.2),
-                               stop_prob=0.0, stop_rate=0.0, cross_prob=0.0)
+                               stop_prob=0.0, stop_rate=0.0, cross_prob=0.0, user_wait=None)
+
+
+def test_the_user_waits_for_a_still_robot():
+    # Walking away from a robot that does not move, the user slows down past 3 m and stands
+    # at 4.5 m (plus what the 0.5 s relaxation to the preferred velocity carries them); without
+    # waiting they walk on.
+    cfg = CORRIDOR._replace(user_wait=(3.0, 4.5))
+    tr = _single(cfg, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
+    gap = tr.pos[:, 0, 0] + 16.0
+    assert 4.0 < gap.max() <= 4.6
+    speed = np.linalg.norm(tr.vel[:, 0], axis=-1)
+    assert speed[-20:].max() < 0.05
+    free = _single(CORRIDOR, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
+    assert free.pos[:, 0, 0].max() + 16.0 > 10.0
 
 
 def test_people_stay_inside_the_room_and_out_of_the_furniture(crowd):
