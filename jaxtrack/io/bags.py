@@ -321,8 +321,8 @@ def read_detections(path, topic: str, max_detections: int, *, rate: float | None
 
     A bag carries its own message definitions (ROS 1 always, ROS 2 from Iron on); for a bag
     without them, pass a ``typestore`` where `register_people_msgs` registered people_msgs.
-    Messages with more than ``max_detections`` entries keep the first ones; the report counts
-    the dropped entries.
+    Messages with more than ``max_detections`` entries keep the first ones; entries with NaN or
+    inf positions are left out; the report counts both.
 
     Returns:
       `PersonDetections` with xy [T, M, 2], M = ``max_detections``.
@@ -337,17 +337,21 @@ def read_detections(path, topic: str, max_detections: int, *, rate: float | None
                                time_source, typestore)
     xy = np.zeros((len(msgs), M, 2))
     mask = np.zeros((len(msgs), M), bool)
-    dropped = 0
+    dropped = nonfinite = 0
     for i, (_, m) in enumerate(msgs):
         points = ([p.position for p in m.poses] if hasattr(m, "poses")
                   else [p.pos for p in m.people])
-        dropped += max(len(points) - M, 0)
-        for j, p in enumerate(points[:M]):
+        finite = [p for p in points if math.isfinite(p.x) and math.isfinite(p.y)]
+        nonfinite += len(points) - len(finite)
+        dropped += max(len(finite) - M, 0)
+        for j, p in enumerate(finite[:M]):
             xy[i, j] = (p.x, p.y)
             mask[i, j] = True
-    if dropped and report is not None:
-        note = f"{dropped} detections beyond max_detections={M} dropped"
-        report = report._replace(detail=f"{report.detail}; {note}" if report.detail else note)
+    notes = [f"{dropped} detections beyond max_detections={M} dropped"] if dropped else []
+    notes += [f"{nonfinite} detections with NaN / inf positions dropped"] if nonfinite else []
+    if notes:
+        report = report._replace(detail="; ".join(([report.detail] if report.detail else [])
+                                                  + notes))
     times = np.array([t for t, _ in msgs], np.float64)
     out = PersonDetections(times, xy, mask, np.ones(len(msgs), bool), report)
     if rate is None:
@@ -478,7 +482,7 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
               depth: DepthImages | None = None, topics: dict | None = None,
               detections_type: str = POSE_ARRAY, depth_encoding: str = "32FC1",
               storage: str = "sqlite3", frames: dict | None = None, typestore=None,
-              chunk_bytes: int | None = None) -> Path:
+              chunk_bytes: int | None = None, compression: str | None = None) -> Path:
     """Write records (e.g. a simulated recording) as a ROS 1 or ROS 2 bag.
 
     Only rows with ``valid`` are written. Laser beams outside ``mask`` are written as ``inf``
@@ -499,6 +503,7 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
       typestore: ``rosbags`` type store (default: ROS 1 Noetic / ROS 2 Humble, plus
         people_msgs).
       chunk_bytes: ROS 1 chunk size (default rosbags' 1 MiB).
+      compression: ROS 1 chunk compression, None, "lz4" or "bz2".
 
     Returns:
       The path written.
@@ -514,6 +519,9 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     if detections_type not in (POSE_ARRAY, POSITION_MEASUREMENT_ARRAY):
         raise ValueError(f"detections_type must be {POSE_ARRAY!r} or "
                          f"{POSITION_MEASUREMENT_ARRAY!r}; got {detections_type!r}")
+    if compression not in (None, "lz4", "bz2") or (compression and version != 1):
+        raise ValueError(f"compression must be None, 'lz4' or 'bz2' (ROS 1); got "
+                         f"{compression!r} for version {version}")
     if depth_encoding not in ("32FC1", "16UC1"):
         raise BagError(f"depth encoding {depth_encoding!r} is not supported (32FC1, 16UC1)")
     streams = {"laser": laser, "odometry": odometry, "detections": detections, "depth": depth}
@@ -554,7 +562,10 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     if version == 1:
         from rosbags.rosbag1 import Writer
 
-        with Writer(path) as writer:
+        writer = Writer(path)
+        if compression:
+            writer.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+        with writer:
             if chunk_bytes is not None:
                 writer.chunk_threshold = int(chunk_bytes)
             conns = {k: writer.add_connection(names[k], types[k], typestore=ts)
@@ -875,6 +886,8 @@ def _deserializer(s: _Salvage, ts) -> Callable:
 def _salvage(path: Path, ts, reason: str) -> _Salvage:
     if path.is_dir():
         return _salvage_ros2(path)
+    if path.suffix in (".mcap", ".db3"):  # a ROS 2 storage file given on its own
+        return _salvage_ros2_files([path], {}, [])
     return _salvage_ros1(path)
 
 
@@ -973,10 +986,10 @@ def _salvage_ros1(path: Path) -> _Salvage:
 # -- ROS 2: metadata.yaml + MCAP or sqlite3 storage ---------------------------------------------
 
 
-def _ros2_metadata(path: Path) -> dict:
+def _ros2_metadata(path: Path) -> dict | None:
     meta = path / "metadata.yaml"
     if not meta.exists():
-        raise BagError(f"{path} is not a ROS 2 bag: no metadata.yaml")
+        return None
     from ruamel.yaml import YAML
 
     try:
@@ -988,11 +1001,22 @@ def _ros2_metadata(path: Path) -> dict:
 
 def _salvage_ros2(path: Path) -> _Salvage:
     info = _ros2_metadata(path)
+    if info is None:
+        # A recorder that did not finish writes no metadata.yaml: read the storage files.
+        files = sorted(path.glob("*.db3")) + sorted(path.glob("*.mcap"))
+        if not files:
+            raise BagError(f"{path} is not a ROS 2 bag: no metadata.yaml and no .db3 / .mcap "
+                           f"file")
+        return _salvage_ros2_files(files, {}, ["no metadata.yaml (recording not closed)"])
     counts = {}
     for entry in info.get("topics_with_message_count", []):
         counts[entry["topic_metadata"]["name"]] = int(entry["message_count"])
-    files = [path / f for f in info.get("relative_file_paths", [])]
-    conns, msgs, notes, stopped = {}, [], [], None
+    return _salvage_ros2_files([path / f for f in info.get("relative_file_paths", [])],
+                               counts, [])
+
+
+def _salvage_ros2_files(files, counts, notes) -> _Salvage:
+    conns, msgs, stopped = {}, [], None
     for f in files:
         if not f.exists():
             notes.append(f"{f.name} is missing")

@@ -332,3 +332,57 @@ def test_other_angles_roundtrip_to_float32_rounding(tmp_path):
     got = bags.read_laser(bags.write_bag(tmp_path / "a.bag", 1,
                                          laser=laser._replace(angles=angles)), "/scan")
     np.testing.assert_allclose(got.angles, angles, rtol=0, atol=4 * np.finfo(np.float32).eps)
+
+
+def test_truncated_compressed_ros1_reads_whole_chunks(tmp_path):
+    laser, *_ = _records()
+    for comp in ("lz4", "bz2"):
+        full = bags.write_bag(tmp_path / f"{comp}.bag", 1, laser=laser, chunk_bytes=2048,
+                              compression=comp)
+        np.testing.assert_array_equal(bags.read_laser(full, "/scan").ranges, laser.ranges)
+        cut = _cut(full, tmp_path / f"cut_{comp}.bag", 0.6)
+        with pytest.warns(bags.BagWarning):
+            got = bags.read_laser(cut, "/scan")
+        n = got.report.messages
+        assert 0 < n < T
+        np.testing.assert_array_equal(got.ranges, laser.ranges[:n])
+        assert got.report.stopped_at is not None and got.report.stopped_at < cut.stat().st_size
+    with pytest.raises(ValueError, match="compression"):
+        bags.write_bag(tmp_path / "z", 2, laser=laser, compression="lz4")
+
+
+@pytest.mark.parametrize("kind", ["sqlite3", "mcap"])
+def test_ros2_without_metadata_or_storage_file_alone(written, tmp_path, kind):
+    (laser, odom, *_), paths = written
+    d = tmp_path / kind
+    shutil.copytree(paths[kind], d)
+    (d / "metadata.yaml").unlink()        # a recorder that did not close the bag
+    with pytest.warns(bags.BagWarning, match="metadata.yaml"):
+        got = bags.read_laser(d, "/scan")
+    np.testing.assert_array_equal(got.ranges, laser.ranges)
+    assert got.report.unreadable == -1    # nothing says how many there were
+    storage = next(d.glob("*.db3" if kind == "sqlite3" else "*.mcap"))
+    with warnings.catch_warnings():   # read by rosbags or, failing that, record by record
+        warnings.simplefilter("ignore", bags.BagWarning)
+        o = bags.read_odometry(storage, "/odom")
+    np.testing.assert_array_equal(o.twist, odom.twist)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(bags.BagError, match="no metadata.yaml and no .db3"):
+        bags.read_laser(empty, "/scan")
+
+
+def test_nonfinite_detections_are_left_out(tmp_path):
+    *_, det, _ = _records(6)
+    xy = det.xy.copy()
+    xy[0, 0] = [np.nan, 1.0]
+    xy[1, 0] = [np.inf, 0.0]
+    det = det._replace(xy=xy, mask=det.mask.copy())
+    det.mask[:2, 0] = True
+    got = bags.read_detections(bags.write_bag(tmp_path / "n.bag", 1, detections=det),
+                               "/people", M)
+    assert np.all(np.isfinite(got.xy))
+    for t in range(T):
+        keep = det.xy[t][det.mask[t] & np.all(np.isfinite(det.xy[t]), -1)]
+        np.testing.assert_array_equal(got.xy[t][got.mask[t]], keep)
+    assert "2 detections with NaN / inf" in got.report.detail

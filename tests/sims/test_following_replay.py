@@ -188,3 +188,14 @@ def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
         cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/scan",
                   "--estimator", "kcf", "--out", str(tmp_path)])
     assert "invalid choice: 'kcf'" in capsys.readouterr().err
+
+
+def test_laser_only_without_odometry_tracks_in_the_robot_frame(recording):
+    _, rec, (laser, _, _) = recording
+    # No odometry: the identity pose, so the estimate is in the current robot frame (the
+    # seed-002 Kalman filter, which works in that frame anyway).
+    got = replay.track(laser, None, None, "kf", chunk=CHUNK, progress=False)
+    truth = np.stack([np.asarray(estimators.to_frame(r, p[0]))
+                      for r, p in zip(rec.robot, rec.people)])
+    err = np.linalg.norm(got.user - truth, axis=-1)
+    assert got.user_found.mean() > 0.5 and np.median(err) < 0.3
