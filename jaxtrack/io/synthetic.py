@@ -9,14 +9,23 @@ field of view is detected with probability :math:`P_D`, at its position plus Gau
     z = p + \varepsilon, \qquad \varepsilon \sim \mathcal{N}(0, \sigma^2 I_2),
 
 and each frame adds a Poisson number of false detections (clutter), uniform over a region.
-Per-sensor noise, section III-D ("detector.yaml"): leg detector on the laser 0.2 m, RGB-D
-person detector (ASUS Xtion) 0.3 m, ceiling cameras (AXIS) 0.1 m. The paper gives no figures for
-the detection probability or the clutter rate; the presets use :math:`P_D = 0.9` (the tracker's
-default, `jaxtrack.tracking.TrackerParams.create`) and one false detection per laser scan, 0.2
-per camera frame (section IV, experiment 1, reports laser false positives on tables and chairs;
-the cameras' detector is a CNN). Fields of view: the URG-04LX laser sweeps 240 deg to 5.6 m; the
-Xtion sees 57 deg, 0.5-4.5 m (the same figures as `sims/following`); the ceiling cameras see
-the whole room. Occlusion between people is not modelled.
+Each detection, miss and false detection is independent of the others and of other frames.
+
+Defaults, with where they come from:
+
+- noise std per axis, section III-D (the ``detector.yaml`` tuning): leg detector on the laser
+  0.2 m, RGB-D person detector on the robot (ASUS Xtion) 0.3 m, ceiling cameras (AXIS) 0.1 m;
+- fields of view: of the sensors listed in section III-B (datasheet figures, the same as in
+  `sims/following`): the Hokuyo URG-04LX laser sweeps 240 deg, 0.1-5.6 m; the Xtion sees
+  57 deg, 0.5-4.5 m; the ceiling cameras together see the whole room;
+- detection probability and clutter rate: the paper's JPDA (eq. 6) has :math:`P_D` and a
+  Poisson clutter model but reports no values. The presets use :math:`P_D = 0.9` (the
+  tracker's default, `jaxtrack.tracking.TrackerParams.create`), one false detection per laser
+  scan (section IV, experiment 1, shows laser false positives on tables and chairs) and 0.2 per
+  camera frame. These two are our choices, not measurements.
+
+Occlusion between people is not modelled (`sims.following.rgbd` does it for the simulated
+scene).
 
 Clutter region: the sensor's field-of-view sector when its range is finite and no ``region``
 is given (then ``clutter_rate`` is the mean count in the sector); otherwise the box ``region``
@@ -114,8 +123,8 @@ class SimulatedDetections(NamedTuple):
       mask: [..., M] bools.
       source: [..., M] int32 person slot index p (into the trajectories' P axis) that caused
         the detection, -1 for clutter and in empty slots.
-      num_clutter: [...] int32 false detections drawn in the region before the field-of-view
-        cut and the capacity limit.
+      num_clutter: [...] int32 false detections drawn in the region (a Poisson count capped at
+        M), before the field-of-view cut and the capacity limit.
       num_dropped: [...] int32 detections lost because more than M were produced.
     """
 

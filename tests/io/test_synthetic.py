@@ -265,7 +265,7 @@ PARAMS = tracking.TrackerParams.create(CONFIG, dt=DT, q=0.5, r_std=(0.1,),
 
 
 def walkers():
-    """Four people crossing a 10 m x 10 m room at 10 Hz, swaying; one arrives late, one leaves
+    """Four people crossing an 8 m x 6 m area at 10 Hz, swaying; one arrives late, one leaves
     early. Rows ``frame id x z y vx vz vy`` of an ETH-style obsmat file."""
     t = np.arange(T_RUN) * DT
     start = np.array([[-4.0, -3.0], [4.0, -2.0], [-3.0, 3.0], [0.0, -4.0]])
