@@ -38,7 +38,6 @@ import struct
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator
-from io import BytesIO
 from pathlib import Path
 from typing import NamedTuple
 
@@ -645,12 +644,11 @@ def _odometry_messages(make, rec: Odometry, frame_id, child):
         t = _ns(rec.times[i])
         x, y, yaw = (float(v) for v in rec.pose[i])
         vx, vy, wz = (float(v) for v in rec.twist[i])
-        pose = T["geometry_msgs/msg/PoseWithCovariance"](
-            pose=T["geometry_msgs/msg/Pose"](position=make.point(x, y), orientation=make.quat_yaw(yaw)),
-            covariance=cov)
-        twist = T["geometry_msgs/msg/TwistWithCovariance"](
-            twist=T["geometry_msgs/msg/Twist"](linear=make.vec(vx, vy), angular=make.vec(0, 0, wz)),
-            covariance=cov)
+        pose = T["geometry_msgs/msg/Pose"](position=make.point(x, y),
+                                           orientation=make.quat_yaw(yaw))
+        twist = T["geometry_msgs/msg/Twist"](linear=make.vec(vx, vy), angular=make.vec(0, 0, wz))
+        pose = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov)
+        twist = T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=cov)
         yield t, T[ODOMETRY](header=make.header(t, frame_id, seq), child_frame_id=child,
                              pose=pose, twist=twist)
 
@@ -776,7 +774,7 @@ def _read_topic(path, topic, accepted, time_source, typestore):
         reader.open()
     except Exception as err:  # noqa: BLE001 - any damage to the index: scan the records
         return _read_salvaged(path, topic, accepted, time_source, ts, str(err))
-    out, bad, stopped, detail = [], 0, None, ""
+    out, bad, detail = [], 0, ""
     try:
         available = {n: i.msgtype for n, i in reader.topics.items()}
         name = _resolve_topic(topic, available, path)
@@ -791,17 +789,15 @@ def _read_topic(path, topic, accepted, time_source, typestore):
                     bad += 1
                     continue
                 out.append((_time_of(t, msg, time_source), msg))
-        except Exception as err:  # noqa: BLE001 - storage damaged after the index
+        except Exception as err:  # noqa: BLE001 - storage damaged behind a valid index
             detail = f"reading stopped: {err}"
-            stopped = -1
         msgtype = available[name]
     finally:
         reader.close()
     unreadable = max(expected - len(out), bad)
     if bad and not detail:
         detail = f"{bad} messages could not be decoded"
-    report = BagReport(str(path), name, msgtype, len(out), unreadable,
-                       None if stopped is None else stopped, detail)
+    report = BagReport(str(path), name, msgtype, len(out), unreadable, None, detail)
     _warn(report)
     return _sorted(out), report
 
@@ -813,10 +809,11 @@ def _sorted(out):
 
 def _warn(report: BagReport):
     if not report.complete:
-        where = "" if report.stopped_at in (None, -1) else f" at byte {report.stopped_at}"
-        lost = "an unknown number of" if report.unreadable < 0 else str(report.unreadable)
-        warnings.warn(f"{report.path} {report.topic}: read {report.messages} messages, {lost} "
-                      f"unreadable{where}: {report.detail}", BagWarning, stacklevel=3)
+        where = "" if report.stopped_at is None else f"; unreadable from byte {report.stopped_at}"
+        lost = "unknown" if report.unreadable < 0 else str(report.unreadable)
+        warnings.warn(f"{report.path} {report.topic}: read {report.messages} messages, "
+                      f"unreadable messages: {lost}{where} ({report.detail})", BagWarning,
+                      stacklevel=4)
 
 
 def _read_salvaged(path, topic, accepted, time_source, ts, reason):

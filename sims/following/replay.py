@@ -375,7 +375,8 @@ def _first_user(ranges, angles, pose, static):
     ok = np.asarray(det.people.mask) & (xy[:, 0] > 0)
     rel = xy[np.argmin(np.where(ok, np.sum(xy**2, -1), np.inf))] if ok.any() else \
         np.array([1.0, 0.0])
-    return np.asarray(estimators.from_frame(jnp.asarray(pose), jnp.asarray(rel, pose.dtype)))
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.asarray(pose[:2]) + np.array([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1]])
 
 
 _detect = jax.jit(legs.detect, static_argnames=("max_segments", "max_people"))
