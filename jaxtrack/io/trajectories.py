@@ -16,7 +16,8 @@ Formats (``#`` comments and blank lines are skipped everywhere):
   ground-plane "3D" form: ``frame, id, bb_left, bb_top, bb_width, bb_height, conf, x, y, z``
   (10 columns). `read_mot_csv` reads columns 1 (frame), 2 (id), 8 (x) and 9 (y), 1-based; the
   image columns, ``conf`` and ``z`` are not interpreted. It also accepts the short form
-  ``frame,id,x,y`` (4 columns).
+  ``frame,id,x,y`` (4 columns). A file whose ``x, y, z`` are -1 in every row (an image-plane
+  MOT file) is refused.
   `write_mot_csv` writes the 10-column form with ``-1`` in the four image columns, ``conf = 1``,
   ``z = 0``, ids as given (no shift to 1-based) and positions with the shortest decimal that
   reads back to the same float, so its output reads back identically.
@@ -319,6 +320,7 @@ def _parse(path, what, ncols, sep):
     name, lines = _open_lines(path)
     rows, numbers = [], []
     first = True
+    image_only = True  # every row a 10-column one with x = y = z = -1
     for i, text in _data_lines(lines):
         fields = re.split(sep, text)
         if first and fields[0].strip().lower() == "frame":
@@ -334,7 +336,10 @@ def _parse(path, what, ncols, sep):
         except ValueError:
             raise ValueError(f"{name}, line {i}: not a number in {text!r}") from None
         if len(fields) == 10:
+            image_only &= values[7] == values[8] == values[9] == -1
             values = [values[0], values[1], values[7], values[8]]
+        else:
+            image_only = False
         if not all(np.isfinite(values)):
             raise ValueError(f"{name}, line {i}: NaN or inf in {text!r}")
         for label, v in (("frame", values[0]), ("id", values[1])):
@@ -345,6 +350,9 @@ def _parse(path, what, ncols, sep):
         numbers.append(i)
     if not rows:
         raise ValueError(f"{name}: no data rows (empty file, or only comments)")
+    if image_only:
+        raise ValueError(f"{name}: x, y, z (columns 8-10) are -1 in every row: an image-plane "
+                         "MOT file, without the ground-plane positions this reader needs")
     return np.asarray(rows, np.float64), np.asarray(numbers)
 
 

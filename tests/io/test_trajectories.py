@@ -160,6 +160,13 @@ def test_mot_csv_reads_the_short_form_and_a_header(tmp_path):
     assert tj.read(path).ids.shape == (2, 2)  # sniffed as the 4-column layout
 
 
+def test_image_plane_mot_file_is_refused(tmp_path):
+    path = tmp_path / "mot15_2d.csv"
+    path.write_text("1,1,912,484,97,109,0.9,-1,-1,-1\n1,2,1342,417,168,380,0.8,-1,-1,-1\n")
+    with pytest.raises(ValueError, match="image-plane MOT file"):
+        tj.read_mot_csv(path)
+
+
 def test_max_people_pads_and_names_the_frame_it_cannot_hold(tmp_path):
     path = tmp_path / "p.txt"
     path.write_text("1 1 0 0\n1 2 1 1\n2 1 0 0\n2 2 1 1\n2 3 2 2\n")
