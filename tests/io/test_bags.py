@@ -386,3 +386,12 @@ def test_nonfinite_detections_are_left_out(tmp_path):
         keep = det.xy[t][det.mask[t] & np.all(np.isfinite(det.xy[t]), -1)]
         np.testing.assert_array_equal(got.xy[t][got.mask[t]], keep)
     assert "2 detections with NaN / inf" in got.report.detail
+
+
+def test_importing_bags_does_not_import_rosbags():
+    import subprocess
+
+    code = ("import sys, jaxtrack.io.bags; "
+            "sys.exit(1 if any(m.split('.')[0] == 'rosbags' for m in sys.modules) else 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr

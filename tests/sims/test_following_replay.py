@@ -6,6 +6,7 @@ import io
 from contextlib import redirect_stdout
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -193,8 +194,11 @@ def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
 def test_laser_only_without_odometry_tracks_in_the_robot_frame(recording):
     _, rec, (laser, _, _) = recording
     # No odometry: the identity pose, so the estimate is in the current robot frame (the
-    # seed-002 Kalman filter, which works in that frame anyway).
-    got = replay.track(laser, None, None, "kf", chunk=CHUNK, progress=False)
+    # seed-002 Kalman filter, which works in that frame anyway). In float64 (the other
+    # replays run in float32).
+    got = replay.track(laser, None, None, "kf", chunk=CHUNK, progress=False,
+                       dtype=jnp.float64)
+    assert got.user.dtype == np.float64 and got.pos.dtype == np.float64
     truth = np.stack([np.asarray(estimators.to_frame(r, p[0]))
                       for r, p in zip(rec.robot, rec.people)])
     err = np.linalg.norm(got.user - truth, axis=-1)
