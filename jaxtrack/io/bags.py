@@ -32,6 +32,7 @@ Example:
 from __future__ import annotations
 
 import math
+import mmap
 import shutil
 import sqlite3
 import struct
@@ -386,8 +387,8 @@ def topics(path, *, typestore=None) -> dict[str, str]:
     try:
         with AnyReader([path], default_typestore=ts) as reader:
             return {name: info.msgtype for name, info in reader.topics.items()}
-    except Exception as err:  # noqa: BLE001 - unreadable index: fall back to a record scan
-        salvage = _salvage(path, ts, str(err))
+    except Exception:  # noqa: BLE001 - unreadable index: fall back to a record scan
+        salvage = _salvage(path, None)
         return {c.topic: c.msgtype for c in salvage.connections.values()}
 
 
@@ -817,7 +818,7 @@ def _warn(report: BagReport):
 
 
 def _read_salvaged(path, topic, accepted, time_source, ts, reason):
-    s = _salvage(path, ts, reason)
+    s = _salvage(path, topic)
     available = {c.topic: c.msgtype for c in s.connections.values()}
     if not available:
         raise BagError(f"{path} is not readable ({reason}); no message could be recovered")
@@ -880,12 +881,25 @@ def _deserializer(s: _Salvage, ts) -> Callable:
     return lambda raw, c: store.deserialize_cdr(raw, c.msgtype)
 
 
-def _salvage(path: Path, ts, reason: str) -> _Salvage:
+def _salvage(path: Path, topic: str | None) -> _Salvage:
+    """Connections of a damaged bag and the messages of ``topic`` (none if None)."""
     if path.is_dir():
-        return _salvage_ros2(path)
+        return _salvage_ros2(path, topic)
     if path.suffix in (".mcap", ".db3"):  # a ROS 2 storage file given on its own
-        return _salvage_ros2_files([path], {}, [])
-    return _salvage_ros1(path)
+        return _salvage_ros2_files([path], {}, [], topic)
+    return _salvage_ros1(path, topic)
+
+
+def _same_topic(a: str, b: str | None) -> bool:
+    return b is not None and a.strip("/") == b.strip("/")
+
+
+def _mapped(f: Path):
+    """The file's bytes, memory-mapped (a damaged bag may be gigabytes)."""
+    if f.stat().st_size == 0:
+        raise BagError(f"{f} is empty")
+    with open(f, "rb") as fh:
+        return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
 
 
 # -- ROS 1: records (header length, header fields, data length, data), Bag format 2.0 ----------
@@ -921,12 +935,19 @@ def _ros1_records(buf: bytes, pos: int
         pos = start + dlen
 
 
-def _salvage_ros1(path: Path) -> _Salvage:
+def _salvage_ros1(path: Path, topic: str | None) -> _Salvage:
+    buf = _mapped(path)
+    try:
+        return _scan_ros1(path, buf, topic)
+    finally:
+        buf.close()
+
+
+def _scan_ros1(path, buf, topic) -> _Salvage:
     from rosbags.typesys.msg import normalize_msgtype
 
-    buf = path.read_bytes()
     magic = b"#ROSBAG V2.0\n"
-    if not buf.startswith(magic):
+    if buf[:len(magic)] != magic:
         raise BagError(f"{path} is not a ROS 1 bag (format 2.0): bad magic")
     conns, msgs = {}, []
     stopped, notes = None, []
@@ -938,8 +959,10 @@ def _salvage_ros1(path: Path) -> _Salvage:
                 f["topic"].decode(), normalize_msgtype(c["type"].decode()),
                 c.get("message_definition", b"").decode(), "msg")
         elif op == 2:  # message data
-            sec, nsec = struct.unpack("<II", f["time"])
-            msgs.append((struct.unpack("<I", f["conn"])[0], sec * 10**9 + nsec, d))
+            cid = struct.unpack("<I", f["conn"])[0]
+            if cid in conns and _same_topic(conns[cid].topic, topic):
+                sec, nsec = struct.unpack("<II", f["time"])
+                msgs.append((cid, sec * 10**9 + nsec, bytes(d)))
 
     def chunk(data, base):
         """Records of a chunk's (uncompressed) data; returns the offset of a cut record."""
@@ -996,7 +1019,7 @@ def _ros2_metadata(path: Path) -> dict | None:
         raise BagError(f"{meta} is not readable: {err}") from None
 
 
-def _salvage_ros2(path: Path) -> _Salvage:
+def _salvage_ros2(path: Path, topic: str | None) -> _Salvage:
     info = _ros2_metadata(path)
     if info is None:
         # A recorder that did not finish writes no metadata.yaml: read the storage files.
@@ -1004,21 +1027,22 @@ def _salvage_ros2(path: Path) -> _Salvage:
         if not files:
             raise BagError(f"{path} is not a ROS 2 bag: no metadata.yaml and no .db3 / .mcap "
                            f"file")
-        return _salvage_ros2_files(files, {}, ["no metadata.yaml (recording not closed)"])
+        return _salvage_ros2_files(files, {}, ["no metadata.yaml (recording not closed)"],
+                                   topic)
     counts = {}
     for entry in info.get("topics_with_message_count", []):
         counts[entry["topic_metadata"]["name"]] = int(entry["message_count"])
     return _salvage_ros2_files([path / f for f in info.get("relative_file_paths", [])],
-                               counts, [])
+                               counts, [], topic)
 
 
-def _salvage_ros2_files(files, counts, notes) -> _Salvage:
+def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
     conns, msgs, stopped = {}, [], None
     for f in files:
         if not f.exists():
             notes.append(f"{f.name} is missing")
             continue
-        part = _salvage_mcap(f) if f.suffix == ".mcap" else _salvage_sqlite(f)
+        part = _salvage_mcap(f, topic) if f.suffix == ".mcap" else _salvage_sqlite(f, topic)
         offset = max(conns, default=0)
         conns.update({cid + offset: c for cid, c in part.connections.items()})
         msgs.extend((cid + offset, t, raw) for cid, t, raw in part.messages)
@@ -1029,9 +1053,16 @@ def _salvage_ros2_files(files, counts, notes) -> _Salvage:
     return _Salvage(conns, msgs, counts, stopped, "; ".join(notes), False)
 
 
-def _salvage_mcap(f: Path) -> _Salvage:
-    buf = f.read_bytes()
-    if not buf.startswith(b"\x89MCAP0\r\n"):
+def _salvage_mcap(f: Path, topic: str | None) -> _Salvage:
+    buf = _mapped(f)
+    try:
+        return _scan_mcap(f, buf, topic)
+    finally:
+        buf.close()
+
+
+def _scan_mcap(f, buf, topic) -> _Salvage:
+    if buf[:8] != b"\x89MCAP0\r\n":
         raise BagError(f"{f} is not an MCAP file: bad magic")
     schemas, conns, msgs = {}, {}, []
     stopped, notes = None, []
@@ -1068,12 +1099,14 @@ def _salvage_mcap(f: Path) -> _Salvage:
                 schemas[sid] = (name, enc, body[p + 4:p + 4 + dl].decode())
             elif op == 0x04:
                 cid, sid = struct.unpack_from("<HH", body, 0)
-                topic, p = string(body, 4)
+                channel_topic, p = string(body, 4)
                 name, enc, text = schemas.get(sid, ("", "", ""))
-                conns[cid] = _Conn(topic, name, text, "idl" if enc == "ros2idl" else "msg")
+                conns[cid] = _Conn(channel_topic, name, text,
+                                   "idl" if enc == "ros2idl" else "msg")
             elif op == 0x05:
                 cid, _, log_time, _ = struct.unpack_from("<HIQQ", body, 0)
-                msgs.append((cid, log_time, body[22:]))
+                if cid in conns and _same_topic(conns[cid].topic, topic):
+                    msgs.append((cid, log_time, bytes(body[22:])))
             elif op == 0x06:
                 comp, p = string(body, 28)
                 (size,) = struct.unpack_from("<Q", body, p)
@@ -1098,7 +1131,7 @@ def _salvage_mcap(f: Path) -> _Salvage:
     return _Salvage(conns, msgs, {}, stopped, detail, False)
 
 
-def _salvage_sqlite(f: Path) -> _Salvage:
+def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
     """Rows of a damaged ``.db3`` by id, from a copy whose page count matches its length."""
     buf = bytearray(f.read_bytes())
     if not buf.startswith(b"SQLite format 3\x00") or len(buf) < 100:
@@ -1131,8 +1164,9 @@ def _salvage_sqlite(f: Path) -> _Salvage:
                     conns[cid] = _Conn(name, typ, text, fmt)
             except sqlite3.Error as err:
                 notes.append(f"topics table unreadable ({err})")
+            wanted = {cid for cid, c in conns.items() if _same_topic(c.topic, topic)}
             misses, rowid = 0, 1
-            while misses < 1000:
+            while wanted and misses < 1000:
                 try:
                     row = con.execute("SELECT topic_id, timestamp, data FROM messages "
                                       "WHERE id = ?", (rowid,)).fetchone()
@@ -1142,7 +1176,8 @@ def _salvage_sqlite(f: Path) -> _Salvage:
                     misses += 1
                 else:
                     misses = 0
-                    msgs.append((row[0], row[1], bytes(row[2])))
+                    if row[0] in wanted:
+                        msgs.append((row[0], row[1], bytes(row[2])))
                 rowid += 1
         finally:
             con.close()
