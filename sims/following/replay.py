@@ -293,8 +293,9 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         raise ValueError("laser times must increase")
     np_dtype = np.dtype(jnp.dtype(dtype).name)
     if odometry is not None:
-        oi = _align(np.asarray(odometry.times)[odometry.valid], times, np.inf)
-        pose = np.asarray(odometry.pose)[np.asarray(odometry.valid, bool)][oi]
+        ov = np.asarray(odometry.valid, bool)
+        oi = _align(np.asarray(odometry.times)[ov], times, np.inf)
+        pose = np.asarray(odometry.pose)[ov][oi]
     else:
         pose = np.zeros((T, 3))
     if detections is not None:
