@@ -38,8 +38,12 @@ to it.
         + w_\omega \Big(\frac{\omega - \omega_d}{\omega_{max}}\Big)^2
         + w_c \frac{\max(c_{ref} - c, 0)}{c_{ref}}
 
-  (:math:`c` the arc's clearance, :math:`c_{ref}` = ``clearance_scale``) replaces it, the first
-  one in grid order on ties. If no grid command is admissible (possible only when the window
+  (:math:`c_{ref}` = ``clearance_scale``) replaces it, the first one in grid order on ties.
+  :math:`c = \sqrt{\min_j (d_j^2 - l_j^2) + (r + \text{margin})^2} - r`, with :math:`d_j` the
+  distance from point :math:`j` to the arc and :math:`l_j` its limit (``radius + margin``, or
+  its present distance for a point already inside), is the arc's clearance from the robot's
+  body when no point is inside the enlarged disc (one reduction over the points gives both
+  :math:`c` and admissibility, :math:`\min_j (d_j^2 - l_j^2) \ge 0`). If no grid command is admissible (possible only when the window
   excludes :math:`v = 0`), the robot stops: :math:`v = 0` at once (an emergency stop beyond
   :math:`a_{max}`) and turns at :math:`\omega_d` brought into the window (``blocked="rotate"``)
   or not at all (``"halt"``).
@@ -50,8 +54,9 @@ it (the choice is piecewise constant in :math:`u_d`, and the window is built fro
 in the blocked case, the turn rate's clip of :math:`\omega_d`. No gradient flows through the
 obstacle points except into ``info.clearance``.
 
-Cost: ``(num_v * num_omega + 2) * B`` point-to-arc distances per call (a square root and a
-division each); ``stride`` keeps every ``stride``-th point (beams of a dense scan).
+Cost: ``(num_v * num_omega + 1) * B`` point-to-arc distances per call (a square root and a
+division each) and one reduction over them; ``stride`` keeps every ``stride``-th point (beams of
+a dense scan).
 
 Public API: `AvoidanceParams`, `AvoidanceInfo`, `select`, `DESIRED`, `REPLACED`, `BLOCKED`.
 """
@@ -176,18 +181,24 @@ def select(params: AvoidanceParams, u_desired: Array, u_prev: Array, points: Arr
       points: [B, 2] obstacle points in the robot frame (m); rows with ``mask`` False may hold
         anything (NaN included).
       mask: [B] bool, valid points. Inside traced code, non-finite valid points are ignored.
-      stride: keep every ``stride``-th point (static int >= 1).
+      stride: keep every ``stride``-th point (static int >= 1); an obstacle thinner than the
+        gap between kept beams may be missed until the robot is close to it.
       blocked: what to do when nothing is admissible: ``"rotate"`` (v = 0, turn toward the
         desired heading change) or ``"halt"`` (v = omega = 0).
 
     Returns:
       u: [2] (v, omega) in ``u_desired``'s float dtype; `AvoidanceInfo`.
 
+    Gradient: the identity w.r.t. ``u_desired`` when it is returned (``case == DESIRED``), so
+    the gradients of the follower's gains pass through untouched; zero when a grid command
+    replaces it; in the blocked case only the turn rate's clip of ``u_desired[1]`` carries one.
+
     Example:
       >>> wall = jnp.stack([jnp.full(41, 0.5), jnp.linspace(-1, 1, 41)], -1)
       >>> u, info = select(AvoidanceParams(), jnp.array([0.5, 0.0]), jnp.array([0.5, 0.0]),
       ...                  wall, jnp.ones(41, bool))
       >>> int(info.case)  # 2: the window cannot brake below 0.35 m/s, so it stops
+      >>> u  # (0, 0)
     """
     _check_params(params)
     if blocked not in _BLOCKED_MODES:
@@ -244,7 +255,7 @@ def _select(params, u_des, u_prev, points, mask, blocked):
     turn = jnp.clip(des[1], w_lo, w_hi) if blocked == "rotate" else f(0.0)
     fallback = jnp.stack([f(0.0), turn])
 
-    cand = jnp.concatenate([des[None], grid, fallback[None]])
+    cand = jnp.concatenate([des[None], grid])
     free, clearance = _sweep(params, cand, points, mask)
 
     # The follower's own acceleration limit lands on the window's edge up to rounding.
@@ -255,19 +266,20 @@ def _select(params, u_des, u_prev, points, mask, blocked):
                  & (des[1] >= w_lo - tol_w) & (des[1] <= w_hi + tol_w))
     desired_ok = des_finite & in_window & free[0]
 
-    g = grid.shape[0]
-    ok = free[1:g + 1]
+    ok = free[1:]
     c_ref = f(params.clearance_scale)
     cost = (f(params.weight_v) * ((grid[:, 0] - des[0]) / v_max) ** 2
             + f(params.weight_omega) * ((grid[:, 1] - des[1]) / w_max) ** 2
-            + f(params.weight_clearance) * jnp.maximum(c_ref - clearance[1:g + 1], 0.0) / c_ref)
+            + f(params.weight_clearance) * jnp.maximum(c_ref - clearance[1:], 0.0) / c_ref)
     best = jnp.argmin(jnp.where(ok, cost, jnp.inf))
     any_ok = jnp.any(ok)
 
     case = jnp.where(desired_ok, DESIRED, jnp.where(any_ok, REPLACED, BLOCKED)).astype(jnp.int32)
-    index = jnp.where(desired_ok, 0, jnp.where(any_ok, 1 + best, g + 1))
     u = jnp.where(desired_ok, u_des, jnp.where(any_ok, grid[best], fallback))
-    info = AvoidanceInfo(case, clearance[index], jnp.sum(ok).astype(jnp.int32))
+    closest = jnp.min(jnp.where(mask, _arc_distance2(params, lax.stop_gradient(u)[None], points)[0],
+                                jnp.inf))
+    info = AvoidanceInfo(case, jnp.sqrt(closest) - f(params.radius),
+                         jnp.sum(ok).astype(jnp.int32))
     return u, info
 
 
@@ -275,16 +287,41 @@ _select_jit = jax.jit(_select, static_argnums=5)
 
 
 def _sweep(params, cand, points, mask):
-    """(admissible along the arc [C], clearance [C]) of candidates [C, 2] against points [B, 2].
+    r"""(admissible [C], clearance used by the cost [C]) of candidates [C, 2] given points [B, 2].
 
-    The distance from a point to the arc, exactly: inside the arc's wedge (between the normals
-    at its two ends) it is the distance to the circle, otherwise to the nearer end.
+    One reduction over the points: :math:`m = \min_j (d_j^2 - l_j^2)` with :math:`d_j` the
+    distance from point :math:`j` to the arc and :math:`l_j` its limit (``radius + margin``, or
+    its present distance for a point already inside). The arc collides iff :math:`m < 0`; the
+    cost's clearance is :math:`\sqrt{m + (r + \text{margin})^2} - r`, the arc's clearance when
+    no point is inside the enlarged disc (a point inside counts as on its edge, plus what the
+    arc gains on it).
+    """
+    dtype = cand.dtype
+    d2 = _arc_distance2(params, cand, points)                       # [C, B]
+    radius = jnp.asarray(params.radius, dtype)
+    reach = radius + jnp.asarray(params.margin, dtype)
+    d0 = jnp.sqrt(jnp.sum(points * points, -1))
+    near = jnp.maximum(d0 - 16 * jnp.finfo(dtype).eps * (1.0 + d0), 0.0)
+    limit = jnp.minimum(reach, near)                                # [B]
+    m = jnp.min(jnp.where(mask, d2 - limit * limit, jnp.inf), axis=1)
+    v = cand[:, 0]
+    horizon = jnp.asarray(params.horizon, dtype)
+    stoppable = v * v <= 2.0 * jnp.asarray(params.a_max, dtype) * jnp.abs(v) * horizon
+    return (m >= 0) & stoppable, jnp.sqrt(jnp.maximum(m + reach * reach, 0.0)) - radius
+
+
+def _arc_distance2(params, cand, points):
+    """Squared distances [C, B] from points [B, 2] to the arcs of candidates [C, 2], exactly.
+
+    Inside the arc's wedge (between the normals at its two ends) the distance is the distance
+    to the circle, otherwise to the nearer end.
     """
     dtype = cand.dtype
     horizon = jnp.asarray(params.horizon, dtype)
     v, w = cand[:, :1], cand[:, 1:]                                 # [C, 1]
     moving = v != 0
-    kappa = jnp.where(moving, w / jnp.where(moving, v, 1.0), 0.0)   # signed curvature
+    # Signed curvature; beyond 1/um the arc is a turn on the spot (and kappa^2 stays finite).
+    kappa = jnp.clip(jnp.where(moving, w / jnp.where(moving, v, 1.0), 0.0), -1e6, 1e6)
     turn = w * horizon
     end_x = v * horizon * jnp.sinc(turn / jnp.pi)
     end_y = v * horizon * jnp.sin(turn / 2) * jnp.sinc(turn / (2 * jnp.pi))
@@ -295,26 +332,14 @@ def _sweep(params, cand, points, mask):
     px, py = points[:, 0], points[:, 1]                             # [B]
     r2 = px * px + py * py
     # | |p - c| - 1/|kappa| | with c = (0, 1/kappa), free of cancellation for small kappa.
-    root = jnp.sqrt((kappa * px) ** 2 + (1.0 - kappa * py) ** 2)   # [C, B]
+    root = jnp.sqrt((kappa * px) ** 2 + (1.0 - kappa * py) ** 2)
     to_circle = jnp.abs(kappa * r2 - 2.0 * py) / (1.0 + root)
     ahead = sign * px >= 0
     before_end = (end_x - px) * tan_x + (end_y - py) * tan_y >= 0
     inside = jnp.where(sweep >= 2 * jnp.pi, True,
                        jnp.where(sweep <= jnp.pi, ahead & before_end, ahead | before_end))
     to_end2 = (px - end_x) ** 2 + (py - end_y) ** 2
-    d2 = jnp.where(inside & moving, to_circle * to_circle, jnp.minimum(r2, to_end2))
-
-    radius = jnp.asarray(params.radius, dtype)
-    reach = radius + jnp.asarray(params.margin, dtype)
-    # A point already inside the enlarged disc may not be approached.
-    d0 = jnp.sqrt(r2)
-    near = jnp.maximum(d0 - 16 * jnp.finfo(dtype).eps * (1.0 + d0), 0.0)
-    limit = jnp.minimum(reach, near)                                # [B]
-    collides = jnp.any(mask & (d2 < limit * limit), axis=1)
-    a_max = jnp.asarray(params.a_max, dtype)
-    stoppable = v[:, 0] ** 2 <= 2.0 * a_max * jnp.abs(v[:, 0]) * horizon
-    closest = jnp.min(jnp.where(mask, d2, jnp.inf), axis=1)
-    return ~collides & stoppable, jnp.sqrt(closest) - radius
+    return jnp.where(inside & moving, to_circle * to_circle, jnp.minimum(r2, to_end2))
 
 
 def _check_params(params):

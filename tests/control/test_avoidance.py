@@ -80,8 +80,11 @@ def numpy_select(p, u_desired, u_prev, points, mask, blocked="rotate"):
             return False
         return not np.any(arc_distance(v, w, p.horizon, pts) < limit)
 
-    def clearance(v, w):
-        return arc_distance(v, w, p.horizon, pts).min() - p.radius if len(pts) else np.inf
+    def clearance(v, w):  # the cost's clearance: exact when no point is inside the disc
+        if not len(pts):
+            return np.inf
+        m = np.min(arc_distance(v, w, p.horizon, pts) ** 2 - limit ** 2)
+        return np.sqrt(max(m + (p.radius + p.margin) ** 2, 0.0)) - p.radius
 
     v_min = -p.v_max if p.allow_reverse else 0.0
     dv, dw = p.a_max * p.dt, p.alpha_max * p.dt
@@ -159,6 +162,11 @@ def test_free_space_returns_desired_bit_identical_with_identity_gradient(dtype):
     u, info = call(avoidance.AvoidanceParams(), ud, up, points, np.zeros(len(points), bool),
                    dtype)
     assert np.array_equal(np.asarray(u), np.asarray(ud)) and np.isinf(float(info.clearance))
+    # A vanishing speed (huge curvature) is a turn on the spot, not a NaN.
+    ud = jnp.asarray([1e-30, 0.2], dtype)
+    u, info = call(avoidance.AvoidanceParams(), ud, jnp.zeros(2, dtype), points, mask, dtype)
+    assert np.array_equal(np.asarray(u), np.asarray(ud)) and int(info.case) == 0
+    assert float(info.clearance) == pytest.approx(4.7, abs=1e-5)
 
 
 follower_control = jax.jit(lambda fp, person, prev: follower.control(
