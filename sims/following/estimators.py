@@ -59,6 +59,10 @@ class EstimatorConfig:
       gate: user re-acquisition radius (m).
       cluster_cap: largest particle-clustering distance (m), see `people_pf.PeoplePFConfig`.
       laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
+      report_misses: the multi-target estimators report (to the metrics, as the tracker's
+        output) the confirmed tracks detected within the last ``report_misses + 1`` scans;
+        tracks coasting longer through an occlusion are kept but not reported, as the ground
+        truth holds only the people the laser sees.
     """
 
     kind: str = "pf"
@@ -73,6 +77,7 @@ class EstimatorConfig:
     cluster_cap: float = 0.6
     laser_fov: tuple = (2.094, 0.1, 5.6)
     rgbd_fov: tuple = (0.497, 0.5, 4.5)
+    report_misses: int = 3
 
     def __post_init__(self):
         _checks.check_options("estimator", (self.kind,), ESTIMATORS)
@@ -116,7 +121,7 @@ class EstimatorParams(NamedTuple):
         tcfg = tracker.TrackerConfig(capacity=config.capacity, association=assoc,
                                      jpda_method=config.jpda_method, filter="ukf",
                                      num_features=3 if config.appearance else 0,
-                                     max_misses=8, max_position_std=1.0)
+                                     max_misses=8, max_position_std=1.0, merge_distance=0.4)
         tparams = tracker.TrackerParams.create(
             tcfg, dt=dt, q=q, r_std=(laser_std, rgbd_std), p_detect=0.8, clutter_density=0.02,
             alpha=1.0 if config.appearance else 0.0, dtype=dtype)
@@ -325,7 +330,7 @@ def _tracker_update(state, det, lm, km, params):
     mean = jnp.where(found, tr.mean[slot], pred)
     est = Estimate(mean, found & (tr.misses[slot] == 0), tr.heading[slot],
                    jnp.where(found, user_id, -1).astype(jnp.int32), tr.mean[:, :2],
-                   tr.id, confirmed)
+                   tr.id, confirmed & (tr.misses <= cfg.report_misses))
     return (tr, user_id, mean, ident), est
 
 

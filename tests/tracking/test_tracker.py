@@ -172,3 +172,46 @@ def test_bad_input_is_rejected_at_the_boundary():
                       tracking.make_detections([[0.0, 1.0]], capacity=4), p)
     with pytest.raises(ValueError, match="p_detect"):
         tracking.TrackerParams.create(p_detect=1.0)
+
+
+def _two_sensor_scenario(seed=0, T=40):
+    """One person walking, seen by a precise sensor (0.05 m, index 0) and a coarse one
+    (0.3 m, index 1) whose detection often falls outside the person's gate."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) * 0.1
+    truth = np.stack([-1.0 + 0.8 * t, 0.5 * np.ones(T)], -1)
+    pos = np.stack([truth + 0.05 * rng.standard_normal((T, 2)),
+                    truth + 0.3 * rng.standard_normal((T, 2))], 1)
+    det = tracking.Detections(jnp.asarray(pos), jnp.ones((T, 2), bool),
+                              jnp.tile(jnp.arange(2, dtype=jnp.int32), (T, 1)), jnp.ones((T, 2)),
+                              jnp.zeros((T, 2, 0)))
+    return det, truth
+
+
+@pytest.mark.parametrize("merge", [0.0, 0.4])
+def test_merge_distance_keeps_one_track_per_person(merge):
+    det, truth = _two_sensor_scenario()
+    cfg = tracking.TrackerConfig(capacity=6, association="gnn", merge_distance=merge)
+    p = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.05, 0.3), dtype=jnp.float64)
+    _, seq = jax.jit(tracking.run)(tracking.init(cfg, jnp.float64), det, p)
+    live = np.asarray(seq.status) != tracking.FREE
+    near = live & (np.linalg.norm(np.asarray(seq.mean)[..., :2] - truth[:, None], axis=-1)
+                   < 0.4)
+    if merge:
+        # Never two live tracks within the merge distance of each other, and the person's
+        # first track (id 0) survives every merge.
+        m = np.asarray(seq.mean)[..., :2]
+        d = np.linalg.norm(m[:, :, None] - m[:, None], axis=-1)
+        both = live[:, :, None] & live[:, None] & ~np.eye(6, dtype=bool)
+        assert not np.any(both & (d < merge))
+        assert np.all(np.any(live & (np.asarray(seq.id) == 0), 1))
+        assert near.sum(1).max() == 1
+    else:
+        # Without merging the coarse sensor starts duplicates on the same person (so the check
+        # above can fail).
+        assert near.sum(1).max() >= 2
+
+
+def test_merge_distance_must_be_non_negative():
+    with pytest.raises(ValueError, match="merge_distance"):
+        tracking.TrackerConfig(merge_distance=-0.1)
