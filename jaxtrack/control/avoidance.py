@@ -43,7 +43,10 @@ to it.
   distance from point :math:`j` to the arc and :math:`l_j` its limit (``radius + margin``, or
   its present distance for a point already inside), is the arc's clearance from the robot's
   body when no point is inside the enlarged disc (one reduction over the points gives both
-  :math:`c` and admissibility, :math:`\min_j (d_j^2 - l_j^2) \ge 0`). If no grid command is admissible (possible only when the window
+  :math:`c` and admissibility, :math:`\min_j (d_j^2 - l_j^2) \ge 0`). Turning on the spot
+  leaves the disc where it is, so when :math:`v_d > 0` such a command takes the :math:`c` of
+  the straight path of length :math:`v_{max} T` along the heading :math:`\omega T` it reaches:
+  a robot that has to stop turns toward open space rather than keep facing what blocks it. If no grid command is admissible (possible only when the window
   excludes :math:`v = 0`), the robot stops: :math:`v = 0` at once (an emergency stop beyond
   :math:`a_{max}`) and turns at :math:`\omega_d` brought into the window (``blocked="rotate"``)
   or not at all (``"halt"``).
@@ -257,6 +260,13 @@ def _select(params, u_des, u_prev, points, mask, blocked):
 
     cand = jnp.concatenate([des[None], grid])
     free, clearance = _sweep(params, cand, points, mask)
+    # Turning on the spot leaves the disc where it is. A robot that wants to drive on should
+    # then turn toward open space rather than keep facing what blocks it: such commands are
+    # judged by the straight path (v_max T long) along the heading they reach.
+    g, nw = grid.shape[0], params.num_omega
+    spot = (grid[:, 0] == 0) & (des[0] > 0)
+    heading_clearance = _heading_clearance(params, ws, points, mask)      # [num_omega]
+    grid_clearance = jnp.where(spot, jnp.tile(heading_clearance, g // nw), clearance[1:])
 
     # The follower's own acceleration limit lands on the window's edge up to rounding.
     eps = jnp.finfo(dtype).eps
@@ -270,7 +280,7 @@ def _select(params, u_des, u_prev, points, mask, blocked):
     c_ref = f(params.clearance_scale)
     cost = (f(params.weight_v) * ((grid[:, 0] - des[0]) / v_max) ** 2
             + f(params.weight_omega) * ((grid[:, 1] - des[1]) / w_max) ** 2
-            + f(params.weight_clearance) * jnp.maximum(c_ref - clearance[1:], 0.0) / c_ref)
+            + f(params.weight_clearance) * jnp.maximum(c_ref - grid_clearance, 0.0) / c_ref)
     best = jnp.argmin(jnp.where(ok, cost, jnp.inf))
     any_ok = jnp.any(ok)
 
@@ -300,14 +310,38 @@ def _sweep(params, cand, points, mask):
     d2 = _arc_distance2(params, cand, points)                       # [C, B]
     radius = jnp.asarray(params.radius, dtype)
     reach = radius + jnp.asarray(params.margin, dtype)
-    d0 = jnp.sqrt(jnp.sum(points * points, -1))
-    near = jnp.maximum(d0 - 16 * jnp.finfo(dtype).eps * (1.0 + d0), 0.0)
-    limit = jnp.minimum(reach, near)                                # [B]
+    limit = _limit(points, reach)                                   # [B]
     m = jnp.min(jnp.where(mask, d2 - limit * limit, jnp.inf), axis=1)
     v = cand[:, 0]
     horizon = jnp.asarray(params.horizon, dtype)
     stoppable = v * v <= 2.0 * jnp.asarray(params.a_max, dtype) * jnp.abs(v) * horizon
     return (m >= 0) & stoppable, jnp.sqrt(jnp.maximum(m + reach * reach, 0.0)) - radius
+
+
+def _heading_clearance(params, omegas, points, mask):
+    """Cost clearance [W] (as in `_sweep`) of straight paths of length v_max T, headings omega T."""
+    dtype = points.dtype
+    horizon = jnp.asarray(params.horizon, dtype)
+    length = jnp.asarray(params.v_max, dtype) * horizon
+    heading = omegas[:, None] * horizon
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    px, py = points[:, 0], points[:, 1]
+    along = c * px + s * py                                         # [W, B]
+    across = c * py - s * px
+    beyond = along - jnp.clip(along, 0.0, length)
+    d2 = beyond * beyond + across * across
+    radius = jnp.asarray(params.radius, dtype)
+    reach = radius + jnp.asarray(params.margin, dtype)
+    limit = _limit(points, reach)
+    m = jnp.min(jnp.where(mask, d2 - limit * limit, jnp.inf), axis=1)
+    return jnp.sqrt(jnp.maximum(m + reach * reach, 0.0)) - radius
+
+
+def _limit(points, reach):
+    """[B] the distance each point must keep from the arcs: ``reach``, or less if already inside."""
+    d0 = jnp.sqrt(jnp.sum(points * points, -1))
+    near = jnp.maximum(d0 - 16 * jnp.finfo(points.dtype).eps * (1.0 + d0), 0.0)
+    return jnp.minimum(reach, near)
 
 
 def _arc_distance2(params, cand, points):

@@ -96,6 +96,16 @@ def numpy_select(p, u_desired, u_prev, points, mask, blocked="rotate"):
     if (v_lo - tol_v <= vd <= v_hi + tol_v and w_lo - tol_w <= wd <= w_hi + tol_w
             and admissible(vd, wd)):
         return np.array(u_desired), avoidance.DESIRED
+    def heading_clearance(w):  # a turn on the spot: the straight path along the new heading
+        if not len(pts):
+            return np.inf
+        heading, length = w * p.horizon, p.v_max * p.horizon
+        end = length * np.array([np.cos(heading), np.sin(heading)])
+        s = np.clip(pts @ end / length ** 2, 0.0, 1.0)
+        d = np.linalg.norm(pts - s[:, None] * end, axis=1)
+        m = np.min(d ** 2 - limit ** 2)
+        return np.sqrt(max(m + (p.radius + p.margin) ** 2, 0.0)) - p.radius
+
     best, best_cost = None, np.inf
     for i in range(p.num_v):
         v = v_lo + (v_hi - v_lo) * i / (p.num_v - 1)
@@ -103,10 +113,10 @@ def numpy_select(p, u_desired, u_prev, points, mask, blocked="rotate"):
             w = w_lo + (w_hi - w_lo) * j / (p.num_omega - 1)
             if not admissible(v, w):
                 continue
+            c = heading_clearance(w) if v == 0 and vd > 0 else clearance(v, w)
             cost = (p.weight_v * ((v - vd) / p.v_max) ** 2
                     + p.weight_omega * ((w - wd) / p.omega_max) ** 2
-                    + p.weight_clearance * max(p.clearance_scale - clearance(v, w), 0.0)
-                    / p.clearance_scale)
+                    + p.weight_clearance * max(p.clearance_scale - c, 0.0) / p.clearance_scale)
             if cost < best_cost:
                 best, best_cost = np.array([v, w]), cost
     if best is not None:
@@ -248,6 +258,20 @@ def test_point_inside_disc_may_not_be_approached():
     assert sampled_clearance(np.asarray(u), points, 0.3, 1.0) >= np.linalg.norm(points) - 0.3 - 1e-9
 
 
+def test_stopped_in_front_of_a_post_turns_toward_open_space():
+    # At rest with a post just left of straight ahead, no forward arc in the window is clear:
+    # the robot turns right (away from the post), although the desired turn rate is zero.
+    post = np.array([[0.42, 0.08]])
+    for side in (1.0, -1.0):
+        u, info = call(avoidance.AvoidanceParams(), [0.15, 0.0], [0.0, 0.0], post * [1, side])
+        assert int(info.case) == avoidance.REPLACED
+        assert float(u[0]) == 0.0 and side * float(u[1]) == pytest.approx(-0.3)
+    # Wanting to back away (v_d < 0, no reversing) it just stops and keeps the desired turn.
+    u, info = call(avoidance.AvoidanceParams(), [-0.1, 0.1], [0.0, 0.0], post)
+    assert int(info.case) == avoidance.REPLACED
+    np.testing.assert_allclose(np.asarray(u), [0.0, 0.06 * round(0.1 / 0.06)], atol=1e-12)
+
+
 # ---------------------------------------------------------------------------------------------
 # Brute-force reference
 
@@ -262,6 +286,8 @@ def random_case(rng, params):
                                                                   params.omega_max)])
     if rng.uniform() < 0.5:
         up[1] = 0.0  # a straight arc on the grid
+    if rng.uniform() < 0.3:
+        up[0] = 0.0  # at rest: turning on the spot is in the window
     ud = up + rng.uniform(-1, 1, 2) * [params.a_max * params.dt, params.alpha_max * params.dt]
     if rng.uniform() < 0.3:
         ud = rng.uniform([-0.5, -2.5], [2.5, 2.5])  # outside the window
@@ -276,14 +302,20 @@ def random_case(rng, params):
 def test_selection_matches_numpy_loop(params):
     rng = np.random.default_rng(7)
     cases = {0: 0, 1: 0, 2: 0}
-    for _ in range(60):
+    spot = 0  # replaced by a turn on the spot (scored by the heading's straight path)
+    for k in range(80):
         ud, up, points, mask = random_case(rng, params)
+        if k >= 60:  # at rest among close points: often only turning on the spot is clear
+            up[0], ud[0] = 0.0, rng.uniform(0.05, 0.15)
+            points = rng.uniform([-0.5, -1.0], [1.0, 1.0], points.shape)
         expected, case = numpy_select(params, ud, up, points, mask)
         u, info = call(params, ud, up, points, mask)
         assert int(info.case) == case
         np.testing.assert_allclose(np.asarray(u), expected, rtol=0, atol=1e-12)
         cases[case] += 1
+        spot += case == avoidance.REPLACED and expected[0] == 0
     assert min(cases.values()) >= 3, cases  # every branch was exercised
+    assert spot >= 3 or params.allow_reverse  # (the reversing grid has no v = 0 row)
 
 
 def test_stride_keeps_every_kth_point():
