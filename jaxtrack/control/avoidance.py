@@ -45,8 +45,9 @@ to it.
   body when no point is inside the enlarged disc (one reduction over the points gives both
   :math:`c` and admissibility, :math:`\min_j (d_j^2 - l_j^2) \ge 0`). Turning on the spot
   leaves the disc where it is, so when :math:`v_d > 0` such a command takes the :math:`c` of
-  the straight path of length :math:`v_{max} T` along the heading :math:`\omega T` it reaches:
-  a robot that has to stop turns toward open space rather than keep facing what blocks it. If no grid command is admissible (possible only when the window
+  the straight path of length :math:`v_{max} T` along the heading :math:`\omega T` it reaches,
+  and one more unit of the clearance term (:math:`w_c`) if that path is not clear: a robot
+  that has to stop turns toward open space rather than keep facing what blocks it. If no grid command is admissible (possible only when the window
   excludes :math:`v = 0`), the robot stops: :math:`v = 0` at once (an emergency stop beyond
   :math:`a_{max}`) and turns at :math:`\omega_d` brought into the window (``blocked="rotate"``)
   or not at all (``"halt"``).
@@ -262,11 +263,13 @@ def _select(params, u_des, u_prev, points, mask, blocked):
     free, clearance = _sweep(params, cand, points, mask)
     # Turning on the spot leaves the disc where it is. A robot that wants to drive on should
     # then turn toward open space rather than keep facing what blocks it: such commands are
-    # judged by the straight path (v_max T long) along the heading they reach.
+    # judged by the straight path (v_max T long) along the heading they reach, with one more
+    # unit of the clearance term when that path is not clear.
     g, nw = grid.shape[0], params.num_omega
     spot = (grid[:, 0] == 0) & (des[0] > 0)
-    heading_clearance = _heading_clearance(params, ws, points, mask)      # [num_omega]
+    heading_clearance, heading_blocked = _heading_clearance(params, ws, points, mask)
     grid_clearance = jnp.where(spot, jnp.tile(heading_clearance, g // nw), clearance[1:])
+    spot_blocked = spot & jnp.tile(heading_blocked, g // nw)
 
     # The follower's own acceleration limit lands on the window's edge up to rounding.
     eps = jnp.finfo(dtype).eps
@@ -280,7 +283,8 @@ def _select(params, u_des, u_prev, points, mask, blocked):
     c_ref = f(params.clearance_scale)
     cost = (f(params.weight_v) * ((grid[:, 0] - des[0]) / v_max) ** 2
             + f(params.weight_omega) * ((grid[:, 1] - des[1]) / w_max) ** 2
-            + f(params.weight_clearance) * jnp.maximum(c_ref - grid_clearance, 0.0) / c_ref)
+            + f(params.weight_clearance) * (jnp.maximum(c_ref - grid_clearance, 0.0) / c_ref
+                                            + spot_blocked))
     best = jnp.argmin(jnp.where(ok, cost, jnp.inf))
     any_ok = jnp.any(ok)
 
@@ -319,7 +323,8 @@ def _sweep(params, cand, points, mask):
 
 
 def _heading_clearance(params, omegas, points, mask):
-    """Cost clearance [W] (as in `_sweep`) of straight paths of length v_max T, headings omega T."""
+    """(cost clearance [W] as in `_sweep`, collides [W]) of straight paths v_max T long along
+    the headings omega T."""
     dtype = points.dtype
     horizon = jnp.asarray(params.horizon, dtype)
     length = jnp.asarray(params.v_max, dtype) * horizon
@@ -334,7 +339,7 @@ def _heading_clearance(params, omegas, points, mask):
     reach = radius + jnp.asarray(params.margin, dtype)
     limit = _limit(points, reach)
     m = jnp.min(jnp.where(mask, d2 - limit * limit, jnp.inf), axis=1)
-    return jnp.sqrt(jnp.maximum(m + reach * reach, 0.0)) - radius
+    return jnp.sqrt(jnp.maximum(m + reach * reach, 0.0)) - radius, m < 0
 
 
 def _limit(points, reach):

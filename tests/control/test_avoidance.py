@@ -98,13 +98,13 @@ def numpy_select(p, u_desired, u_prev, points, mask, blocked="rotate"):
         return np.array(u_desired), avoidance.DESIRED
     def heading_clearance(w):  # a turn on the spot: the straight path along the new heading
         if not len(pts):
-            return np.inf
+            return np.inf, False
         heading, length = w * p.horizon, p.v_max * p.horizon
         end = length * np.array([np.cos(heading), np.sin(heading)])
         s = np.clip(pts @ end / length ** 2, 0.0, 1.0)
         d = np.linalg.norm(pts - s[:, None] * end, axis=1)
         m = np.min(d ** 2 - limit ** 2)
-        return np.sqrt(max(m + (p.radius + p.margin) ** 2, 0.0)) - p.radius
+        return np.sqrt(max(m + (p.radius + p.margin) ** 2, 0.0)) - p.radius, m < 0
 
     best, best_cost = None, np.inf
     for i in range(p.num_v):
@@ -113,10 +113,12 @@ def numpy_select(p, u_desired, u_prev, points, mask, blocked="rotate"):
             w = w_lo + (w_hi - w_lo) * j / (p.num_omega - 1)
             if not admissible(v, w):
                 continue
-            c = heading_clearance(w) if v == 0 and vd > 0 else clearance(v, w)
+            c, blocked_path = (heading_clearance(w) if v == 0 and vd > 0
+                               else (clearance(v, w), False))
             cost = (p.weight_v * ((v - vd) / p.v_max) ** 2
                     + p.weight_omega * ((w - wd) / p.omega_max) ** 2
-                    + p.weight_clearance * max(p.clearance_scale - c, 0.0) / p.clearance_scale)
+                    + p.weight_clearance * (max(p.clearance_scale - c, 0.0) / p.clearance_scale
+                                            + blocked_path))
             if cost < best_cost:
                 best, best_cost = np.array([v, w]), cost
     if best is not None:
