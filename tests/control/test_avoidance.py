@@ -484,6 +484,47 @@ def test_params_pass_through_jit_and_vmap_over_leaves():
 
 
 @jax.jit
+def following_loss(log_k1, points, mask, with_layer):
+    """Squared follower-point error over a 30-step closed loop behind a walking person."""
+    fp = follower.Params.create(v_max=1.5, alpha_max=4.0)._replace(log_k1=log_k1)
+    ap = avoidance.AvoidanceParams(v_max=1.5, alpha_max=4.0)
+
+    def body(carry, t):
+        pose, prev = carry
+        person = jnp.array([2.0 + 0.8 * t, 0.3 * t])
+        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+        rot = jnp.array([[c, s], [-s, c]])
+        rel, vel = rot @ (person - pose[:2]), rot @ jnp.array([0.8, 0.3])
+        u = follower.control(fp, jnp.zeros(3), rel, vel, prev, 0.1, frame="robot")
+        local = (points - pose[:2]) @ rot.T  # world obstacles into the robot frame
+        u_sel, info = avoidance.select(ap, u, prev, local, mask)
+        u = jnp.where(with_layer, u_sel, u)
+        err = follower.error(pose, person, fp.point)
+        return (follower.unicycle_step(pose, u, 0.1), u), (jnp.sum(err ** 2), info.case)
+
+    (_, _), (errs, cases) = jax.lax.scan(body, (jnp.zeros(3), jnp.zeros(2)),
+                                         0.1 * jnp.arange(30.0))
+    return jnp.sum(errs), cases
+
+
+def test_gradient_of_gains_passes_through_when_layer_does_not_intervene():
+    far = jnp.asarray(pad([[0.0, 6.0], [10.0, -6.0]])[0])
+    far_mask = jnp.asarray(pad([[0.0, 6.0], [10.0, -6.0]])[1])
+    grad = jax.grad(lambda k, w: following_loss(k, far, far_mask, w)[0])
+    (_, cases) = following_loss(0.0, far, far_mask, True)
+    assert np.all(np.asarray(cases) == avoidance.DESIRED)
+    np.testing.assert_allclose(float(grad(0.0, True)), float(grad(0.0, False)), rtol=1e-12)
+    # With a post in the way the layer intervenes; the gradient stays finite.
+    post, post_mask = pad(np.stack([1.6 + 0.05 * np.cos(np.linspace(0, 6.2, 24)),
+                                    0.35 + 0.05 * np.sin(np.linspace(0, 6.2, 24))], -1))
+    (_, cases) = following_loss(0.0, jnp.asarray(post), jnp.asarray(post_mask), True)
+    assert np.any(np.asarray(cases) != avoidance.DESIRED)
+    g = float(jax.grad(lambda k: following_loss(k, jnp.asarray(post), jnp.asarray(post_mask),
+                                                True)[0])(0.0))
+    assert np.isfinite(g)
+
+
+@jax.jit
 def traced_nan(points, mask):
     return avoidance.select(avoidance.AvoidanceParams(), jnp.array([0.5, 0.0]),
                             jnp.array([0.5, 0.0]), points, mask)
