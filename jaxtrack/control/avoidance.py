@@ -28,8 +28,8 @@ to it.
   :math:`d = |v| T` (DWA's admissible velocities; true for every candidate when
   ``horizon >= v_max / (2 a_max)``, which `select` requires). A point already inside the
   enlarged disc (a person stepping close) may not be approached: its distance to the arc may
-  not drop below its present distance. Turning on the spot (:math:`v = 0`) does not move the disc,
-  so it is always admissible.
+  not drop below its present distance. Turning on the spot (:math:`v = 0`) does not move the
+  disc, so it is always admissible.
 - Selection. If :math:`u_d` is admissible it is returned unchanged (bit-identical). Otherwise
   the admissible grid command minimising
 
@@ -47,10 +47,14 @@ to it.
   leaves the disc where it is, so when :math:`v_d > 0` such a command takes the :math:`c` of
   the straight path of length :math:`v_{max} T` along the heading :math:`\omega T` it reaches,
   and one more unit of the clearance term (:math:`w_c`) if that path is not clear: a robot
-  that has to stop turns toward open space rather than keep facing what blocks it. If no grid command is admissible (possible only when the window
-  excludes :math:`v = 0`), the robot stops: :math:`v = 0` at once (an emergency stop beyond
+  that has to stop turns toward open space rather than keep facing what blocks it.
+- Blocked. If no grid command is admissible (possible only when the window excludes
+  :math:`v = 0`), the robot stops: :math:`v = 0` at once (an emergency stop beyond
   :math:`a_{max}`) and turns at :math:`\omega_d` brought into the window (``blocked="rotate"``)
   or not at all (``"halt"``).
+- Obstacles are static over the horizon. The person being followed is an obstacle too: unless
+  the caller masks its returns, a user straight ahead at distance :math:`D` caps the speed near
+  :math:`(D - r - \text{margin}) / T`.
 
 Gradient: through :math:`u_d` (identity) when it is returned; zero when a grid command replaces
 it (the choice is piecewise constant in :math:`u_d`, and the window is built from
@@ -59,8 +63,8 @@ in the blocked case, the turn rate's clip of :math:`\omega_d`. No gradient flows
 obstacle points except into ``info.clearance``.
 
 Cost: ``(num_v * num_omega + 1) * B`` point-to-arc distances per call (a square root and a
-division each) and one reduction over them; ``stride`` keeps every ``stride``-th point (beams of
-a dense scan).
+division each) and one reduction over them, plus ``num_omega * B`` point-to-segment distances
+for the turns on the spot; ``stride`` keeps every ``stride``-th point (beams of a dense scan).
 
 Public API: `AvoidanceParams`, `AvoidanceInfo`, `select`, `DESIRED`, `REPLACED`, `BLOCKED`.
 """
