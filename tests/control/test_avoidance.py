@@ -3,8 +3,8 @@
 References: the selection is compared with a plain numpy loop over the candidates whose arc
 distances come from the circle's centre and ``atan2`` angles (the module uses a cancellation-free
 curvature form and half-plane tests); clearances are checked by dense sampling of the arcs; the
-closed loop ray-casts a laser against circles in numpy-independent geometry and checks the
-robot's path at sub-steps.
+closed loop ray-casts a laser against circles (closed-form ray-circle intersections) and checks
+the robot's path against the true circles at sub-steps, in numpy.
 """
 
 import math
@@ -20,10 +20,6 @@ select_batch = jax.jit(jax.vmap(avoidance.select, in_axes=(None, 0, 0, 0, 0)))
 
 # A window wide enough for sharp turns: 0.75 m/s and 2 rad/s per period.
 WIDE = avoidance.AvoidanceParams(dt=0.5, alpha_max=4.0)
-
-
-def dtype_tol(dtype):
-    return 1e-12 if dtype == jnp.float64 else 2e-6
 
 
 # ---------------------------------------------------------------------------------------------
