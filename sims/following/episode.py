@@ -37,9 +37,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxtrack import metrics as jmetrics
-from jaxtrack.control import follower
+from jaxtrack.control import avoidance, follower
 from jaxtrack.perception import legs
 from sims.following import estimators, lidar, pedestrians
 from sims.following import rgbd as rgbd_mod
@@ -78,6 +79,12 @@ class EpisodeConfig:
         work in the drifting odometry frame).
       lost_timeout: after this long (s) without a measurement of the user, the controller
         assumes the user stands still.
+      avoidance: put the dynamic-window layer (`jaxtrack.control.avoidance`) between the
+        follower law and the wheels: the law's command when its arc over the next second is
+        clear of the laser returns and of the outlines of the tables and chairs of the robot's
+        map (the laser sees only their legs, and the gaps between them are not free space),
+        else the closest clear command (the safety stop stays as the last guard);
+        ``avoidance_stride``: every how many beams it checks.
       reverse: allow the robot to drive backwards (its laser sees 240 deg to the front, nothing
         behind: by default it never reverses, and turns instead).
       dtype: float dtype of the estimators and metrics.
@@ -99,6 +106,8 @@ class EpisodeConfig:
     map_filter_radius: float = 0.3
     wall_filter_distance: float = 0.25
     lost_timeout: float = 1.0
+    avoidance: bool = True
+    avoidance_stride: int = 2
     reverse: bool = False
     dtype: object = jnp.float32
 
@@ -186,6 +195,19 @@ def _safe_sqrt(x):
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), jnp.where(x > 0, jnp.inf, 0.0))
 
 
+def _outline_points(furniture, spacing=0.1):
+    """[N, 2] points every ``spacing`` m along the rectangle of each table and chair."""
+    out = []
+    for it in furniture:
+        hx, hy = 0.5 * it["size"][0], 0.5 * it["size"][1]
+        corners = np.asarray(it["centre"]) + np.array([[hx, hy], [-hx, hy], [-hx, -hy],
+                                                       [hx, -hy], [hx, hy]])
+        for a, b in zip(corners[:-1], corners[1:]):
+            n = max(int(np.ceil(np.linalg.norm(b - a) / spacing)), 1)
+            out.append(a + (b - a) * (np.arange(n) / n)[:, None])
+    return np.concatenate(out, 0) if out else np.zeros((0, 2))
+
+
 def _wall_distance(xy, segments):
     """[N] distance from points [N, 2] to the nearest of the segments [S, 2, 2]."""
     a, b = segments[None, :, 0], segments[None, :, 1]
@@ -227,6 +249,7 @@ def make_rollout(config: EpisodeConfig):
                          jnp.ones(len(fr), bool))
     ecfg = config.estimator
     substeps = max(1, round(dt / sc.dt))
+    map_outline = jnp.asarray(_outline_points(sc.furniture), dtype)
     robot_radius = sc.robot_radius
     multi = ecfg.kind in ("gnn", "jpda", "nnjpda")
 
@@ -301,6 +324,21 @@ def make_rollout(config: EpisodeConfig):
                                            params.follower.stop_distance, frame="robot")
             u = follower.control(params.follower, jnp.zeros(3, dtype), rel, vel, c.u, dt,
                                  frame="robot")
+            if config.avoidance:
+                fp = params.follower
+                ap = avoidance.AvoidanceParams(
+                    radius=robot_radius, margin=config.safety_margin, horizon=1.0, v_max=fp.v_max,
+                    omega_max=fp.omega_max, a_max=fp.a_max, alpha_max=fp.alpha_max, dt=dt,
+                    allow_reverse=config.reverse)
+                stride = config.avoidance_stride
+                known = estimators.to_frame(pose, map_outline)
+                # The user walks ahead and is no obstacle to plan around (the safety stop
+                # still guards them): returns within 0.45 m of their estimate are left out.
+                mine = _norm(obstacles - rel) < 0.45
+                pts_all = jnp.concatenate([obstacles[::stride], known])
+                valid_all = jnp.concatenate([(valid & ~mine)[::stride],
+                                             jnp.ones(known.shape[0], bool)])
+                u, _ = avoidance.select(ap, u, c.u, pts_all, valid_all)
             # The safety stop blocks forward motion only (backing away stays possible); a user
             # unseen for longer than lost_timeout is searched for by turning on the spot.
             lost_now = unseen > config.lost_timeout

@@ -39,6 +39,11 @@ def test_rollout_shapes_and_physics(run):
     assert step.max() > 0.0
     # The user is tracked from the start.
     assert np.asarray(f.lost).mean() < 0.2
+    # No sensor behind: the robot never reverses; its body never touches a table or chair leg.
+    assert np.asarray(f.u)[..., 0].min() >= 0.0
+    legs, radii = cfg.scene.furniture_circles()
+    d = np.linalg.norm(np.asarray(f.robot)[..., None, :2] - legs, axis=-1) - radii
+    assert d.min() > cfg.scene.robot_radius
 
 
 def test_metrics_match_direct_recomputation(run):
