@@ -230,6 +230,26 @@ def _visible(ranges, laser_pose, leg_xy, leg_r, cfg):
     return jnp.any(inside & reached, -1)
 
 
+def laser_geometry(sc: scene_mod.Scene, lcfg: lidar.LaserConfig, dtype):
+    """What the laser sees in the scene ``sc``: ``(walls, furniture_legs, circles_of)`` with
+    ``circles_of(people) -> (Circles, leg_sections)``, the people's leg cross-sections at the
+    laser's height followed by the furniture legs."""
+    fc, fr = sc.furniture_circles()
+    walls = lidar.Walls(jnp.asarray(sc.wall_segments(), dtype), jnp.ones(4, bool))
+    furn = lidar.Circles(jnp.asarray(fc, dtype).reshape(-1, 2), jnp.asarray(fr, dtype),
+                         jnp.ones(len(fr), bool))
+
+    def circles_of(people):
+        p0, p1, r = pedestrians.leg_capsules(people, sc.gait)
+        sec = lidar.capsule_sections(p0.reshape(-1, 3), p1.reshape(-1, 3), r.reshape(-1),
+                                     lcfg.height)
+        return lidar.Circles(jnp.concatenate([sec.centers.astype(dtype), furn.centers]),
+                             jnp.concatenate([sec.radii.astype(dtype), furn.radii]),
+                             jnp.concatenate([sec.mask, furn.mask])), sec
+
+    return walls, furn, circles_of
+
+
 def make_rollout(config: EpisodeConfig):
     """Build ``rollout(key, params) -> Frame`` stacked over the T frames (for plots and tests).
 
@@ -243,23 +263,12 @@ def make_rollout(config: EpisodeConfig):
     pcfg = scene_mod.pedestrian_config(sc, distractors=config.distractors)
     lcfg = config.laser
     angles = lidar.beam_angles(lcfg, dtype)
-    fc, fr = sc.furniture_circles()
-    walls = lidar.Walls(jnp.asarray(sc.wall_segments(), dtype), jnp.ones(4, bool))
-    furn = lidar.Circles(jnp.asarray(fc, dtype).reshape(-1, 2), jnp.asarray(fr, dtype),
-                         jnp.ones(len(fr), bool))
+    walls, furn, circles_of = laser_geometry(sc, lcfg, dtype)
     ecfg = config.estimator
     substeps = max(1, round(dt / sc.dt))
     map_outline = jnp.asarray(_outline_points(sc.furniture), dtype)
     robot_radius = sc.robot_radius
     multi = ecfg.kind in ("gnn", "jpda", "nnjpda")
-
-    def circles_of(people):
-        p0, p1, r = pedestrians.leg_capsules(people, sc.gait)
-        sec = lidar.capsule_sections(p0.reshape(-1, 3), p1.reshape(-1, 3), r.reshape(-1),
-                                     lcfg.height)
-        return lidar.Circles(jnp.concatenate([sec.centers.astype(dtype), furn.centers]),
-                             jnp.concatenate([sec.radii.astype(dtype), furn.radii]),
-                             jnp.concatenate([sec.mask, furn.mask])), sec
 
     def rollout(key, params: EpisodeParams):
         k_init, k_est, k_col, k_run = jax.random.split(key, 4)

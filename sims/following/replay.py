@@ -37,7 +37,7 @@ import numpy as np
 from jaxtrack.angles import wrap
 from jaxtrack.io import bags
 from jaxtrack.perception import legs
-from sims.following import estimators, lidar, pedestrians
+from sims.following import episode, estimators, lidar, pedestrians
 from sims.following import rgbd as rgbd_mod
 
 Array = jax.Array
@@ -119,18 +119,7 @@ def make_recorder(scene, *, distractors: int = 3, duration: float = 3.0, dt: flo
     P = scene.num_people
     pcfg = _pedestrian_config(scene, distractors)
     angles = lidar.beam_angles(laser, dtype)
-    fc, fr = scene.furniture_circles()
-    walls = lidar.Walls(jnp.asarray(scene.wall_segments(), dtype), jnp.ones(4, bool))
-    furn = lidar.Circles(jnp.asarray(fc, dtype).reshape(-1, 2), jnp.asarray(fr, dtype),
-                         jnp.ones(len(fr), bool))
-
-    def circles_of(people):
-        p0, p1, r = pedestrians.leg_capsules(people, scene.gait)
-        sec = lidar.capsule_sections(p0.reshape(-1, 3), p1.reshape(-1, 3), r.reshape(-1),
-                                     laser.height)
-        return lidar.Circles(jnp.concatenate([sec.centers.astype(dtype), furn.centers]),
-                             jnp.concatenate([sec.radii.astype(dtype), furn.radii]),
-                             jnp.concatenate([sec.mask, furn.mask]))
+    walls, _, circles_of = episode.laser_geometry(scene, laser, dtype)
 
     def rec(key):
         k_init, k_col, k_run = jax.random.split(key, 3)
@@ -150,7 +139,7 @@ def make_recorder(scene, *, distractors: int = 3, duration: float = 3.0, dt: flo
             new_pose = _unicycle(pose, v, w, dt)
             delta = rgbd_mod.odometry(ks[1], odometry, pose, new_pose)
             new_odom = rgbd_mod.integrate(odom, delta)
-            ranges = lidar.scan(ks[2], lidar.laser_pose(new_pose, laser), circles_of(people),
+            ranges = lidar.scan(ks[2], lidar.laser_pose(new_pose, laser), circles_of(people)[0],
                                 walls, laser)
             det = rgbd_mod.detect(ks[3], rgbd, new_pose, people.pos, people.mask, colours)
             out = (ranges, new_odom, delta / dt, det.xy, det.mask, new_pose, people.pos,
