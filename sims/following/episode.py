@@ -78,7 +78,9 @@ class EpisodeConfig:
         ``wall_filter_distance`` of a wall, of the robot's map (the robot is localised in its map for this filter; the estimators still
         work in the drifting odometry frame).
       lost_timeout: after this long (s) without a measurement of the user, the controller
-        assumes the user stands still.
+        assumes the user stands still and the robot stops driving (it may still turn).
+      search_after, search_rate: after this long (s) without a measurement of the user, the
+        robot turns on the spot at ``search_rate`` (rad/s) to look for them.
       avoidance: put the dynamic-window layer (`jaxtrack.control.avoidance`) between the
         follower law and the wheels: the law's command when its arc over the next second is
         clear of the laser returns and of the outlines of the tables and chairs of the robot's
@@ -106,6 +108,8 @@ class EpisodeConfig:
     map_filter_radius: float = 0.3
     wall_filter_distance: float = 0.25
     lost_timeout: float = 1.0
+    search_after: float = 3.0
+    search_rate: float = 0.6
     avoidance: bool = True
     avoidance_stride: int = 2
     reverse: bool = False
@@ -352,7 +356,14 @@ def make_rollout(config: EpisodeConfig):
             # unseen for longer than lost_timeout is searched for by turning on the spot.
             lost_now = unseen > config.lost_timeout
             v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
-            u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), u[1]])
+            # Unseen for longer than search_after, the robot sweeps its cameras' field of view
+            # round, starting toward where the user was last estimated.
+            fp = params.follower
+            side = jnp.where(rel[1] >= 0.0, 1.0, -1.0)
+            sweep = c.u[1] + jnp.clip(side * config.search_rate - c.u[1],
+                                      -fp.alpha_max * dt, fp.alpha_max * dt)
+            w = jnp.where(unseen > config.search_after, sweep, u[1])
+            u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), w])
             # Metrics (world frame).
             user = people.pos[0]
             fp = estimators.from_frame(pose, params.follower.point)

@@ -258,6 +258,7 @@ _SWITCH = 2.0   # a track is (not) the user beyond +- this log-odds
 _COLOUR_RADIUS = 0.45   # an RGB-D detection informs the nearest track within this (m) ...
 _COLOUR_MARGIN = 0.2    # ... when the second nearest is this much farther (m)
 _COAST = 0.8   # a lost user's velocity decays by this factor per frame
+_FADE = 0.95   # colour log-odds fade by this factor per frame (half-life 1.4 s at 10 Hz)
 
 
 def _colour_evidence(ident, tr, det, km, live, params):
@@ -302,7 +303,9 @@ def _tracker_update(state, det, lm, km, params):
     pred = jnp.concatenate([last[:2] + params.tracker.dt * last[2:], _COAST * last[2:]])
     d2 = jnp.sum((tr.mean[:, :2] - pred[:2]) ** 2, -1)
     if cfg.appearance:
-        logodds = jnp.where(live & (tr.id == ident.ids), ident.logodds, 0.0)
+        # Evidence fades (a track's past colours say less about who it is now: tracks can
+        # swap people in a crowd), then this frame's colours are added.
+        logodds = jnp.where(live & (tr.id == ident.ids), _FADE * ident.logodds, 0.0)
         logodds = jnp.clip(logodds + _colour_evidence(ident, tr, det, km, live, params),
                            -_LOGODDS_MAX, _LOGODDS_MAX)
         ident = ident._replace(logodds=logodds, ids=tr.id)
