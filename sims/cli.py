@@ -53,7 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     follow.add_argument("--people", type=int, default=4, help="distractors besides the user")
     follow.add_argument("--sensors", choices=("both", "laser", "rgbd"), default="both")
     follow.add_argument("--appearance", action="store_true",
-                        help="GNN: add the RGB-D colour classifier term to the cost (seed 001)")
+                        help="use the RGB-D colour feature: the multi-target estimators "
+                             "re-identify the user by it, and GNN adds seed 001's colour "
+                             "classifier term to its cost")
     follow.add_argument("--duration", type=float, default=60.0, help="seconds per episode")
     follow.add_argument("--particles", type=int, default=256)
     follow.add_argument("--batch-size", type=int, default=None)
