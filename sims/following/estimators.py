@@ -59,6 +59,10 @@ class EstimatorConfig:
       gate: user re-acquisition radius (m).
       cluster_cap: largest particle-clustering distance (m), see `people_pf.PeoplePFConfig`.
       laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
+      stitch_time: a confirmed track that dies and a new track confirmed within this long
+        (s) near where it was last detected (0.5 m plus 0.5 m/s of the gap, at most 2 m;
+        mutual nearest pairs) are one person lost through an occlusion: the new track is
+        reported under the old id. 0 turns it off.
       report_misses: the multi-target estimators report (to the metrics, as the tracker's
         output) the confirmed tracks detected within the last ``report_misses + 1`` scans;
         tracks coasting longer through an occlusion are kept but not reported, as the ground
@@ -78,6 +82,7 @@ class EstimatorConfig:
     laser_fov: tuple = (2.094, 0.1, 5.6)
     rgbd_fov: tuple = (0.497, 0.5, 4.5)
     report_misses: int = 3
+    stitch_time: float = 10.0
 
     def __post_init__(self):
         _checks.check_options("estimator", (self.kind,), ESTIMATORS)
@@ -217,7 +222,10 @@ def init(key: Array, params: EstimatorParams, user_xy: Array, odom_pose: Array,
     colour = (jnp.full(3, 0.5, dtype) if user_colour is None
               else jnp.asarray(user_colour, dtype))
     ident = _Identity(colour, jnp.zeros(K, dtype).at[0].set(_LOGODDS_MAX), tr.id)
-    return (tr, jnp.int32(0), jnp.concatenate([user_xy, jnp.zeros(2, dtype)]), ident)
+    stitch = _Stitch(tr.id, tr.id, tr.status == tracker.CONFIRMED, tr.mean[:, :2],
+                     jnp.zeros(K, jnp.int32), jnp.full(K, -1, jnp.int32),
+                     jnp.zeros((K, 2), dtype), jnp.zeros(K, jnp.int32))
+    return (tr, jnp.int32(0), jnp.concatenate([user_xy, jnp.zeros(2, dtype)]), ident, stitch)
 
 
 def update(key: Array, state, det: Detected, odom_pose: Array, odom_rate: Array,
@@ -283,8 +291,52 @@ def _colour_evidence(ident, tr, det, km, live, params):
     return jnp.sum(jnp.where(onehot, llr[:, None], 0.0), 0)
 
 
+class _Stitch(NamedTuple):
+    """Reported ids across occlusions (per track slot, [K]): the id each slot's track is
+    reported under, last frame's track id and confirmation, where and how many frames ago the
+    track was last detected; and a memory of recently deleted confirmed tracks (reported id,
+    last detected position, frames since then; id -1: empty)."""
+
+    alias: Array
+    prev_id: Array
+    prev_confirmed: Array
+    hit_pos: Array
+    hit_age: Array
+    mem_id: Array
+    mem_pos: Array
+    mem_age: Array
+
+
+def _stitch(st: _Stitch, tr, dt, stitch_time):
+    K = tr.id.shape[0]
+    live = tr.status != tracker.FREE
+    confirmed = tr.status == tracker.CONFIRMED
+    same = live & (tr.id == st.prev_id)
+    died = (st.prev_id >= 0) & ~same & st.prev_confirmed
+    mem_id = jnp.where(died, st.alias, st.mem_id)
+    mem_pos = jnp.where(died[:, None], st.hit_pos, st.mem_pos)
+    mem_age = jnp.where(died, st.hit_age, st.mem_age) + 1
+    mem_ok = (mem_id >= 0) & (mem_age * dt <= stitch_time)
+    hit = live & (tr.misses == 0)
+    hit_pos = jnp.where((hit | ~same)[:, None], tr.mean[:, :2], st.hit_pos)
+    hit_age = jnp.where(hit | ~same, 0, st.hit_age + 1)
+    new = confirmed & ~(same & st.prev_confirmed)
+    alias = jnp.where(same, st.alias, tr.id)
+    d = jnp.sqrt(jnp.sum((tr.mean[:, None, :2] - mem_pos[None]) ** 2, -1) + 1e-12)
+    radius = jnp.minimum(0.5 + 0.5 * dt * mem_age, 2.0)
+    d = jnp.where(new[:, None] & mem_ok[None] & (d <= radius[None]), d, jnp.inf)
+    j = jnp.argmin(d, 1)
+    k = jnp.argmin(d, 0)
+    mutual = jnp.isfinite(jnp.min(d, 1)) & (k[j] == jnp.arange(K))
+    alias = jnp.where(mutual, mem_id[j], alias)
+    used = jnp.zeros(K, bool).at[jnp.where(mutual, j, K)].set(True, mode="drop")
+    mem_id = jnp.where(used | ~mem_ok, -1, mem_id)
+    return _Stitch(alias, jnp.where(live, tr.id, -1), confirmed, hit_pos, hit_age, mem_id,
+                   mem_pos, mem_age)
+
+
 def _tracker_update(state, det, lm, km, params):
-    tr, user_id, last, ident = state
+    tr, user_id, last, ident, stitch = state
     cfg = params.config
     dtype = tr.mean.dtype
     L, K = det.laser_xy.shape[0], det.rgbd_xy.shape[0]
@@ -331,10 +383,15 @@ def _tracker_update(state, det, lm, km, params):
         found = found_old | reacquire
     user_id = jnp.where(found, tr.id[slot], user_id)
     mean = jnp.where(found, tr.mean[slot], pred)
+    if cfg.stitch_time > 0:
+        stitch = _stitch(stitch, tr, params.tracker.dt, cfg.stitch_time)
+        ids = stitch.alias
+    else:
+        ids = tr.id
     est = Estimate(mean, found & (tr.misses[slot] == 0), tr.heading[slot],
                    jnp.where(found, user_id, -1).astype(jnp.int32), tr.mean[:, :2],
-                   tr.id, confirmed & (tr.misses <= cfg.report_misses))
-    return (tr, user_id, mean, ident), est
+                   ids, confirmed & (tr.misses <= cfg.report_misses))
+    return (tr, user_id, mean, ident, stitch), est
 
 
 def _kf_update(state, det, lm, km, odom_pose, odom_rate, odom_speed, params):
