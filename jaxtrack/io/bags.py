@@ -887,7 +887,7 @@ def _salvage(path: Path, topic: str | None) -> _Salvage:
         return _salvage_ros2(path, topic)
     if path.suffix in (".mcap", ".db3"):  # a ROS 2 storage file given on its own
         return _salvage_ros2_files([path], {}, [], topic)
-    return _salvage_ros1(path, topic)
+    return _salvage_mapped(_scan_ros1, path, topic)
 
 
 def _same_topic(a: str, b: str | None) -> bool:
@@ -935,10 +935,11 @@ def _ros1_records(buf: bytes, pos: int
         pos = start + dlen
 
 
-def _salvage_ros1(path: Path, topic: str | None) -> _Salvage:
+def _salvage_mapped(scan, path: Path, topic: str | None) -> _Salvage:
+    """Run ``scan(path, buffer, topic)`` over the file memory-mapped, and unmap it."""
     buf = _mapped(path)
     try:
-        return _scan_ros1(path, buf, topic)
+        return scan(path, buf, topic)
     finally:
         buf.close()
 
@@ -1042,7 +1043,8 @@ def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
         if not f.exists():
             notes.append(f"{f.name} is missing")
             continue
-        part = _salvage_mcap(f, topic) if f.suffix == ".mcap" else _salvage_sqlite(f, topic)
+        part = (_salvage_mapped(_scan_mcap, f, topic) if f.suffix == ".mcap"
+                else _salvage_sqlite(f, topic))
         offset = max(conns, default=0)
         conns.update({cid + offset: c for cid, c in part.connections.items()})
         msgs.extend((cid + offset, t, raw) for cid, t, raw in part.messages)
@@ -1053,12 +1055,6 @@ def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
     return _Salvage(conns, msgs, counts, stopped, "; ".join(notes), False)
 
 
-def _salvage_mcap(f: Path, topic: str | None) -> _Salvage:
-    buf = _mapped(f)
-    try:
-        return _scan_mcap(f, buf, topic)
-    finally:
-        buf.close()
 
 
 def _scan_mcap(f, buf, topic) -> _Salvage:
