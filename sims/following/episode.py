@@ -12,8 +12,10 @@ Each 10 Hz frame (``control_dt``):
 3. estimation (`sims.following.estimators`): the user's position and velocity in the odometry
    frame (and everyone, for the multi-target estimators);
 4. control (`jaxtrack.control.follower`, seed 004 eq. 9): the follower point ``P_fm`` on the
-   estimated user, with velocity and acceleration limits and a safety stop when a laser return
-   lies in the robot's path within ``safety_margin`` of its body.
+   estimated user, with velocity and acceleration limits, then a dynamic window
+   (`jaxtrack.control.avoidance`) that replaces a command whose arc would hit a laser return or
+   a table or chair of the map, and a safety stop when a laser return lies in the robot's path
+   within ``safety_margin`` of its body.
 
 Metrics (per episode; the frames are ``T = duration / control_dt``):
 
@@ -75,8 +77,8 @@ class EpisodeConfig:
       max_segments, max_laser_people: leg-detector capacities.
       safety_margin: safety stop distance from the robot's body (m).
       map_filter: drop laser people within ``map_filter_radius`` of a furniture leg, or within
-        ``wall_filter_distance`` of a wall, of the robot's map (the robot is localised in its map for this filter; the estimators still
-        work in the drifting odometry frame).
+        ``wall_filter_distance`` of a wall, of the robot's map (the robot is localised in its
+        map for this filter; the estimators still work in the drifting odometry frame).
       lost_timeout: after this long (s) without a measurement of the user, the controller
         assumes the user stands still and the robot stops driving (it may still turn).
       search_after, search_rate: after this long (s) without a measurement of the user, the
