@@ -104,6 +104,10 @@ def main(argv: list[str] | None = None) -> int:
                       time_source=args.time_source, static_points=args.static_points)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
+        except ImportError as err:
+            if "rosbags" not in str(err):
+                raise
+            parser.exit(2, f"jaxtrack track: {err}\n")
         return 0
     if args.command == "evaluate":
         if not args.threshold > 0:

@@ -191,6 +191,19 @@ def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
     assert "invalid choice: 'kcf'" in capsys.readouterr().err
 
 
+def test_cli_track_without_rosbags_says_how_to_install_it(written, tmp_path, capsys,
+                                                         monkeypatch):
+    import sys
+
+    for name in [m for m in sys.modules if m == "rosbags" or m.startswith("rosbags.")]:
+        monkeypatch.setitem(sys.modules, name, None)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/scan",
+                  "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert 'pip install "jaxtrack[ros]"' in capsys.readouterr().err
+
+
 def test_laser_only_without_odometry_tracks_in_the_robot_frame(recording):
     _, rec, (laser, _, _) = recording
     # No odometry: the identity pose, so the estimate is in the current robot frame (the
