@@ -335,35 +335,33 @@ def make_rollout(config: EpisodeConfig):
             pts, valid = lidar.scan_points(ranges, angles, lcfg)
             corridor = (pts[:, 0] > 0) & (jnp.abs(pts[:, 1]) < robot_radius + 0.05)
             obstacles = pts + jnp.asarray(lcfg.mount, dtype)
+            fol = params.follower
             blocked = follower.safety_stop(jnp.zeros(3, dtype), obstacles, valid & corridor,
-                                           params.follower.stop_distance, frame="robot")
-            u = follower.control(params.follower, jnp.zeros(3, dtype), rel, vel, c.u, dt,
-                                 frame="robot")
+                                           fol.stop_distance, frame="robot")
+            u = follower.control(fol, jnp.zeros(3, dtype), rel, vel, c.u, dt, frame="robot")
             if config.avoidance:
-                fp = params.follower
                 ap = avoidance.AvoidanceParams(
-                    radius=robot_radius, margin=config.safety_margin, horizon=1.0, v_max=fp.v_max,
-                    omega_max=fp.omega_max, a_max=fp.a_max, alpha_max=fp.alpha_max, dt=dt,
-                    allow_reverse=config.reverse)
+                    radius=robot_radius, margin=config.safety_margin, horizon=1.0,
+                    v_max=fol.v_max, omega_max=fol.omega_max, a_max=fol.a_max,
+                    alpha_max=fol.alpha_max, dt=dt, allow_reverse=config.reverse)
                 stride = config.avoidance_stride
                 known = estimators.to_frame(pose, map_outline)
                 # The user walks ahead and is no obstacle to plan around (the safety stop
                 # still guards them): returns within 0.45 m of their estimate are left out.
-                mine = _norm(obstacles - rel) < 0.45
-                pts_all = jnp.concatenate([obstacles[::stride], known])
-                valid_all = jnp.concatenate([(valid & ~mine)[::stride],
-                                             jnp.ones(known.shape[0], bool)])
-                u, _ = avoidance.select(ap, u, c.u, pts_all, valid_all)
+                seen = obstacles[::stride]
+                seen_ok = valid[::stride] & ~(_norm(seen - rel) < 0.45)
+                u, _ = avoidance.select(ap, u, c.u, jnp.concatenate([seen, known]),
+                                        jnp.concatenate([seen_ok,
+                                                         jnp.ones(known.shape[0], bool)]))
             # The safety stop blocks forward motion only (backing away stays possible); a user
             # unseen for longer than lost_timeout is searched for by turning on the spot.
             lost_now = unseen > config.lost_timeout
             v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
             # Unseen for longer than search_after, the robot sweeps its cameras' field of view
             # round, starting toward where the user was last estimated.
-            fp = params.follower
             side = jnp.where(rel[1] >= 0.0, 1.0, -1.0)
             sweep = c.u[1] + jnp.clip(side * config.search_rate - c.u[1],
-                                      -fp.alpha_max * dt, fp.alpha_max * dt)
+                                      -fol.alpha_max * dt, fol.alpha_max * dt)
             w = jnp.where(unseen > config.search_after, sweep, u[1])
             u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), w])
             # Metrics (world frame).
