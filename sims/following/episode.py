@@ -82,7 +82,8 @@ class EpisodeConfig:
       lost_timeout: after this long (s) without a measurement of the user, the controller
         assumes the user stands still and the robot stops driving (it may still turn).
       search_after, search_rate: after this long (s) without a measurement of the user, the
-        robot turns on the spot at ``search_rate`` (rad/s) to look for them.
+        robot turns on the spot at ``search_rate`` (rad/s) to look for them, in one direction
+        (toward the side of the last estimate) until it finds them.
       avoidance: put the dynamic-window layer (`jaxtrack.control.avoidance`) between the
         follower law and the wheels: the law's command when its arc over the next second is
         clear of the laser returns and of the outlines of the tables and chairs of the robot's
@@ -166,6 +167,7 @@ class _Carry(NamedTuple):
     unseen: Array
     last_id: Array
     switches: Array
+    search_side: Array
 
 
 class Frame(NamedTuple):
@@ -290,7 +292,7 @@ def make_rollout(config: EpisodeConfig):
         S = config.max_segments
         carry = _Carry(data, people, pose0, pose0, est, jnp.zeros(2, dtype),
                        jnp.zeros((S, 2), dtype), jnp.zeros(S, bool), jnp.zeros((), dtype),
-                       jnp.int32(0), jnp.int32(0))
+                       jnp.int32(0), jnp.int32(0), jnp.ones((), dtype))
 
         def frame(c: _Carry, k):
             ks = jax.random.split(k, 6)
@@ -358,11 +360,13 @@ def make_rollout(config: EpisodeConfig):
             lost_now = unseen > config.lost_timeout
             v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
             # Unseen for longer than search_after, the robot sweeps its cameras' field of view
-            # round, starting toward where the user was last estimated.
-            side = jnp.where(rel[1] >= 0.0, 1.0, -1.0)
+            # round, turning toward the side where the user was last estimated and keeping
+            # that direction (the stale estimate must not make it swing back and forth).
+            searching = unseen > config.search_after
+            side = jnp.where(searching, c.search_side, jnp.where(rel[1] >= 0.0, 1.0, -1.0))
             sweep = c.u[1] + jnp.clip(side * config.search_rate - c.u[1],
                                       -fol.alpha_max * dt, fol.alpha_max * dt)
-            w = jnp.where(unseen > config.search_after, sweep, u[1])
+            w = jnp.where(searching, sweep, u[1])
             u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), w])
             # Metrics (world frame).
             user = people.pos[0]
@@ -392,7 +396,8 @@ def make_rollout(config: EpisodeConfig):
                         _safe_sqrt(lu), _safe_sqrt(ru))
             new = _Carry(data, people, pose, odom, est, u,
                          estimators.from_frame(lodom, det.legs_xy.astype(dtype)),
-                         det.legs_mask, unseen, last_id, c.switches + switched)
+                         det.legs_mask, unseen, last_id, c.switches + switched,
+                         side.astype(dtype))
             return new, (rec, switched)
 
         keys = jax.random.split(k_run, config.num_frames)

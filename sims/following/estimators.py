@@ -55,7 +55,8 @@ class EstimatorConfig:
       appearance: use the RGB-D colour feature: in the GNN cost (seed 001's online
         classifier), and for the multi-target estimators to re-identify the user (each track
         accumulates the log-odds that it is the user from the colours of the RGB-D detections
-        nearest to it; the user's track is abandoned for another when their colours say so).
+        nearest to it, fading with a half-life of 1.4 s, or 7 s for evidence against; the
+        user's track is abandoned for another when their colours say so).
       gate: user re-acquisition radius (m).
       cluster_cap: largest particle-clustering distance (m), see `people_pf.PeoplePFConfig`.
       laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
@@ -267,6 +268,7 @@ _COLOUR_RADIUS = 0.45   # an RGB-D detection informs the nearest track within th
 _COLOUR_MARGIN = 0.2    # ... when the second nearest is this much farther (m)
 _COAST = 0.8   # a lost user's velocity decays by this factor per frame
 _FADE = 0.95   # colour log-odds fade by this factor per frame (half-life 1.4 s at 10 Hz)
+_FADE_OTHER = 0.99   # ... but a track's evidence of being someone else by 0.99 (half-life 7 s)
 
 
 def _colour_evidence(ident, tr, det, km, live, params):
@@ -356,8 +358,11 @@ def _tracker_update(state, det, lm, km, params):
     d2 = jnp.sum((tr.mean[:, :2] - pred[:2]) ** 2, -1)
     if cfg.appearance:
         # Evidence fades (a track's past colours say less about who it is now: tracks can
-        # swap people in a crowd), then this frame's colours are added.
-        logodds = jnp.where(live & (tr.id == ident.ids), _FADE * ident.logodds, 0.0)
+        # swap people in a crowd), then this frame's colours are added. Evidence that a track
+        # is someone else fades five times slower: otherwise a distractor seen a second ago
+        # becomes a candidate for re-acquisition as soon as the user is lost near them.
+        fade = jnp.where(ident.logodds < 0.0, _FADE_OTHER, _FADE)
+        logodds = jnp.where(live & (tr.id == ident.ids), fade * ident.logodds, 0.0)
         logodds = jnp.clip(logodds + _colour_evidence(ident, tr, det, km, live, params),
                            -_LOGODDS_MAX, _LOGODDS_MAX)
         ident = ident._replace(logodds=logodds, ids=tr.id)

@@ -117,6 +117,10 @@ class PedestrianConfig(NamedTuple):
       user_wait: ``(near, far)`` distances (m) between the user and the robot: beyond ``near``
         the user slows down linearly, and at ``far`` they stand and wait for their robot, as
         the user of a following robot does; ``None``: the user ignores the robot.
+      user_return: beyond this distance (m) from the robot (with ``user_wait`` set) the user
+        walks back toward it, at their preferred speed from half a metre further on: a user
+        whose robot has lost them comes back into its sensors' range instead of waiting out
+        of it. ``None``: they only wait.
       gait: `GaitParams`.
     """
 
@@ -146,7 +150,8 @@ class PedestrianConfig(NamedTuple):
     cross_prob: float = 0.5
     max_turn_rate: float = 4.0
     robot_start_distance: float = 1.2
-    user_wait: tuple | None = (3.0, 4.5)
+    user_wait: tuple | None = (3.0, 4.0)
+    user_return: float | None = 4.0
     gait: GaitParams = GaitParams()
 
 
@@ -264,6 +269,15 @@ def init(key: Array, cfg: PedestrianConfig, num_people: int,
     if _checks.is_concrete(lo) and not 0.0 < float(lo) <= float(hi) <= float(cfg.max_speed):
         raise ValueError(f"speed_range must satisfy 0 < lo <= hi <= max_speed; got "
                          f"{tuple(cfg.speed_range)} with max_speed {cfg.max_speed}")
+    if cfg.user_wait is not None and all(_checks.is_concrete(x) for x in cfg.user_wait):
+        near_w, far_w = (float(x) for x in cfg.user_wait)
+        if not 0.0 <= near_w < far_w:
+            raise ValueError(f"user_wait must be (near, far) with 0 <= near < far; got "
+                             f"{tuple(cfg.user_wait)}")
+        ret = cfg.user_return
+        if ret is not None and _checks.is_concrete(ret) and not float(ret) >= far_w:
+            raise ValueError(f"user_return ({ret}) must be at least user_wait's far "
+                             f"distance ({far_w}): the user waits before walking back")
     W, H = (float(x) for x in cfg.room)
     nx, ny = int((W - 2 * cfg.wall_margin) // _CELL), int((H - 2 * cfg.wall_margin) // _CELL)
     if W <= 0 or H <= 0 or nx * ny < P + 3:
@@ -403,6 +417,10 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
         gap = jnp.linalg.norm(pos[0] - robot_xy)
         slow = jnp.clip((far_w - gap) / (far_w - near_w), 0.0, 1.0)
         preferred = preferred.at[0].multiply(slow)
+        if cfg.user_return is not None:
+            back = jnp.clip((gap - cfg.user_return) / 0.5, 0.0, 1.0)
+            to_robot, _ = _unit(robot_xy - pos[0])
+            preferred = preferred.at[0].add(back * speed[0] * to_robot)
     force = (preferred - vel) / cfg.relax_time
     pair = mask[:, None] & mask[None, :] & ~jnp.eye(P, dtype=bool)
     force += _repulsion(pos, pos[None], state.heading, cfg.social_strength, cfg.social_range,

@@ -47,7 +47,7 @@ def test_the_user_waits_for_a_still_robot():
     # Walking away from a robot that does not move, the user slows down past 3 m and stands
     # at 4.5 m (plus what the 0.5 s relaxation to the preferred velocity carries them); without
     # waiting they walk on.
-    cfg = CORRIDOR._replace(user_wait=(3.0, 4.5))
+    cfg = CORRIDOR._replace(user_wait=(3.0, 4.5), user_return=None)
     tr = _single(cfg, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
     gap = tr.pos[:, 0, 0] + 16.0
     assert 4.0 < gap.max() <= 4.6
@@ -55,6 +55,27 @@ def test_the_user_waits_for_a_still_robot():
     assert speed[-20:].max() < 0.05
     free = _single(CORRIDOR, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
     assert free.pos[:, 0, 0].max() + 16.0 > 10.0
+
+
+def test_the_user_comes_back_to_a_robot_that_lost_them():
+    # Beyond user_return the user walks back toward the robot: starting 7 m from a still
+    # robot, they end standing within half a metre of 4 m, inside the RGB-D range.
+    cfg = CORRIDOR._replace(user_wait=(3.0, 4.0), user_return=4.0)
+    tr = _single(cfg, (-9.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
+    gap = tr.pos[:, 0, 0] + 16.0
+    assert gap[0] > 6.5
+    assert np.all(np.abs(gap[-100:] - 4.0) < 0.5)
+    assert np.linalg.norm(tr.vel[-20:, 0], axis=-1).max() < 0.1
+    # Walking away from it, they stop near 4 m and do not walk on.
+    tr = _single(cfg, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
+    gap = tr.pos[:, 0, 0] + 16.0
+    assert 3.5 < gap[-1] < 4.5 and gap.max() < 4.6
+
+
+@pytest.mark.parametrize("wait, ret", [((4.0, 3.0), None), ((3.0, 4.5), 4.0)])
+def test_bad_waiting_distances_are_refused(wait, ret):
+    with pytest.raises(ValueError, match="user_wait|user_return"):
+        pd.init(jax.random.PRNGKey(0), CORRIDOR._replace(user_wait=wait, user_return=ret), 1)
 
 
 def test_people_stay_inside_the_room_and_out_of_the_furniture(crowd):
