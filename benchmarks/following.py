@@ -2,6 +2,7 @@
 
     python benchmarks/following.py [--episodes 256] [--duration 60] [--estimators kf,pf,gnn]
     python benchmarks/following.py --gradcheck [--episodes 16] [--duration 20]
+        [--no-avoidance] [--people K] [--fd-step H]
 
 The timing run compiles ``vmap(episode)`` once per estimator for a batch of ``--episodes`` and
 reports the compile time, the wall time of the batch, microseconds per 10 Hz step per episode
@@ -64,7 +65,8 @@ def timing(args):
 def gradcheck(args):
     sc = scene.build(num_people=8)
     cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="kf"), duration=args.duration,
-                           distractors=args.people)
+                           distractors=args.people,
+                           avoidance=not args.no_avoidance)
     params = ep.make_params(cfg)
     episode = ep.make_episode(cfg)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
@@ -91,7 +93,8 @@ def gradcheck(args):
         e = jnp.zeros(3).at[i].set(h)
         fd.append(float((loss(theta0 + e) - loss(theta0 - e)) / (2 * h)))
     print(f"\nclosed-loop gradient of the mean following RMS over {args.episodes} episodes x "
-          f"{args.duration:.0f} s (KF estimator, {args.people} distractors; AD {t_ad:.0f} s incl. "
+          f"{args.duration:.0f} s (KF estimator, {args.people} distractors, avoidance "
+          f"{not args.no_avoidance}; AD {t_ad:.0f} s incl. "
           f"compile; FD step {h} in log space)")
     print(f"{'parameter':<14}{'AD':>12}{'FD':>12}{'rel. diff':>12}")
     for n, a, b in zip(names, g, fd):
@@ -106,6 +109,8 @@ def main():
     p.add_argument("--people", type=int, default=4)
     p.add_argument("--gradcheck", action="store_true")
     p.add_argument("--fd-step", type=float, default=0.05)
+    p.add_argument("--no-avoidance", action="store_true",
+                   help="gradient check without the dynamic-window layer")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     if args.gradcheck:
