@@ -83,7 +83,10 @@ class EpisodeConfig:
         assumes the user stands still and the robot stops driving (it may still turn).
       search_after, search_rate: after this long (s) without a measurement of the user, the
         robot turns on the spot at ``search_rate`` (rad/s) to look for them, in one direction
-        (toward the side of the last estimate) until it finds them.
+        (toward the side of the last estimate) until it finds them. With an estimator that
+        re-identifies by colour (``appearance``), from ``lost_timeout`` on it first turns
+        toward the person the colours have not told apart from the user nearest to the last
+        estimate (`estimators.Estimate.look`), at most at ``search_rate``.
       avoidance: put the dynamic-window layer (`jaxtrack.control.avoidance`) between the
         follower law and the wheels: the law's command when its arc over the next second is
         clear of the laser returns and of the outlines of the tables and chairs of the robot's
@@ -364,8 +367,18 @@ def make_rollout(config: EpisodeConfig):
             # that direction (the stale estimate must not make it swing back and forth).
             searching = unseen > config.search_after
             side = jnp.where(searching, c.search_side, jnp.where(rel[1] >= 0.0, 1.0, -1.0))
-            sweep = c.u[1] + jnp.clip(side * config.search_rate - c.u[1],
-                                      -fol.alpha_max * dt, fol.alpha_max * dt)
+            target = side * config.search_rate
+            if e.look is not None:
+                # With colours to tell people apart, a robot that has lost its user for
+                # longer than lost_timeout first turns toward the nearest person the colours
+                # have not yet told apart from the user, to see them.
+                lk = estimators.to_frame(odom, e.look)
+                looking = e.look_ok & lost_now
+                target = jnp.where(looking, jnp.clip(2.0 * jnp.arctan2(lk[1], lk[0]),
+                                                     -config.search_rate, config.search_rate),
+                                   target)
+                searching = searching | looking
+            sweep = c.u[1] + jnp.clip(target - c.u[1], -fol.alpha_max * dt, fol.alpha_max * dt)
             w = jnp.where(searching, sweep, u[1])
             u = jnp.stack([v if config.reverse else jnp.maximum(v, 0.0), w])
             # Metrics (world frame).

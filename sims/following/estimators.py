@@ -159,6 +159,10 @@ class Estimate(NamedTuple):
       user: [4] ``[p_x, p_y, v_x, v_y]``; user_found: bool, measured at this frame.
       user_heading: scalar (rad); user_id: int32 identity of the estimate (-1 if none).
       people: [P, 2] every person estimate; people_ids: [P] int32; people_mask: [P].
+      look: [2] where a robot that has lost its user should point its camera: the confirmed
+        track, detected now, nearest to the user's last estimate whose identity the colours
+        have not settled (multi-target estimators with ``appearance``; None otherwise).
+      look_ok: bool, whether there is such a track while the user is not measured.
     """
 
     user: Array
@@ -168,6 +172,8 @@ class Estimate(NamedTuple):
     people: Array
     people_ids: Array
     people_mask: Array
+    look: Array | None = None
+    look_ok: Array | None = None
 
 
 def to_frame(pose: Array, xy: Array) -> Array:
@@ -380,6 +386,11 @@ def _tracker_update(state, det, lm, km, params):
         keep = found_old & ~cur_bad
         slot = jnp.where(to_best, best, jnp.where(keep, cur, near))
         found = to_best | keep | reacquire
+        # Whom to look at while the user is not measured: detected now, identity open.
+        open_ = confirmed & (tr.misses == 0) & (jnp.abs(logodds) < _SWITCH)
+        cand = jnp.argmin(jnp.where(open_, jnp.sum((tr.mean[:, :2] - pred[:2]) ** 2, -1),
+                                    jnp.inf))
+        look, look_ok = tr.mean[cand, :2], open_[cand] & ~(found & (tr.misses[slot] == 0))
     else:
         d2 = jnp.where(live, d2, jnp.inf)
         near = jnp.argmin(d2)
@@ -395,7 +406,8 @@ def _tracker_update(state, det, lm, km, params):
         ids = tr.id
     est = Estimate(mean, found & (tr.misses[slot] == 0), tr.heading[slot],
                    jnp.where(found, user_id, -1).astype(jnp.int32), tr.mean[:, :2],
-                   ids, confirmed & (tr.misses <= cfg.report_misses))
+                   ids, confirmed & (tr.misses <= cfg.report_misses),
+                   *((look, look_ok) if cfg.appearance else ()))
     return (tr, user_id, mean, ident, stitch), est
 
 

@@ -118,7 +118,7 @@ def test_colour_reidentifies_the_user(kind):
     assert results[False][-8:].min() > 0.5, results[False]
 
 
-def _run_tracker(cfg, params, user0, shown, laser, lm, rgbd, km, colours):
+def _run_tracker(cfg, params, user0, shown, laser, lm, rgbd, km, colours, out="user"):
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     state = E.init(jax.random.PRNGKey(0), params, f32(user0), jnp.zeros(3), f32(shown))
 
@@ -126,10 +126,11 @@ def _run_tracker(cfg, params, user0, shown, laser, lm, rgbd, km, colours):
         lx, lmk, kx, kmk, col = inp
         s, e = E.update(jax.random.PRNGKey(0), s, E.Detected(lx, lmk, kx, kmk, col),
                         jnp.zeros(3), jnp.float32(0.0), jnp.float32(0.0), params)
-        return s, e.user
+        return s, (e.user if out == "user" else (e.look, e.look_ok, e.user_found))
 
     xs = (f32(laser), jnp.asarray(lm), f32(rgbd), jnp.asarray(km), f32(colours))
-    return np.asarray(jax.jit(lambda s, xs: jax.lax.scan(body, s, xs)[1])(state, xs))
+    res = jax.jit(lambda s, xs: jax.lax.scan(body, s, xs)[1])(state, xs)
+    return jax.tree_util.tree_map(np.asarray, res)
 
 
 def _known_distractor(seed=0, T2=80):
@@ -169,6 +170,28 @@ def test_a_known_distractor_is_not_taken_for_the_lost_user(monkeypatch):
     assert np.linalg.norm(est[:45, :2] - user[:45], axis=1).max() < 0.3
     assert runs[E._FADE][-5:].max() < 0.3        # the fast fade follows the distractor ...
     assert runs[0.99][-5:].min() > 0.8           # ... the slow one does not
+
+
+def test_a_robot_that_lost_its_user_is_told_whom_to_look_at():
+    # No colours at all: once the user is gone, the nearest confirmed track whose identity is
+    # open (the distractor, still beyond the re-acquisition gate) is where to look; while the
+    # user is measured there is nothing to look for.
+    user, other, laser, lm, rgbd, km, colours, shown = _known_distractor()
+    cfg = E.EstimatorConfig(kind="gnn", capacity=4, appearance=True,
+                            laser_fov=(3.2, 0.0, 10.0), rgbd_fov=(3.2, 0.0, 10.0))
+    params = E.EstimatorParams.create(cfg, laser_std=0.05, rgbd_std=0.1)
+    look, look_ok, found = _run_tracker(cfg, params, user[0], shown, laser, lm, rgbd,
+                                        np.zeros_like(km), colours, out="look")
+    assert found[:50].all() and not look_ok[:50].any()
+    assert look_ok[52:57].all() and not found[52:57].any()
+    assert np.linalg.norm(look[52:57] - other[52:57], axis=1).max() < 0.3
+    plain = E.EstimatorParams.create(E.EstimatorConfig(kind="gnn", capacity=4))
+    det = E.Detected(jnp.zeros((2, 2)), jnp.zeros(2, bool), jnp.zeros((2, 2)),
+                     jnp.zeros(2, bool), jnp.zeros((2, 3)))
+    e = E.update(jax.random.PRNGKey(0), E.init(jax.random.PRNGKey(0), plain, jnp.zeros(2),
+                                               jnp.zeros(3)),
+                 det, jnp.zeros(3), jnp.float32(0.0), jnp.float32(0.0), plain)[1]
+    assert e.look is None and e.look_ok is None
 
 
 @pytest.mark.parametrize("stitch_time", [0.0, 10.0])
