@@ -114,7 +114,7 @@ class EpisodeConfig:
     map_filter_radius: float = 0.3
     wall_filter_distance: float = 0.25
     lost_timeout: float = 1.0
-    search_after: float = 3.0
+    search_after: float = 1.5
     search_rate: float = 0.6
     avoidance: bool = True
     avoidance_stride: int = 2
