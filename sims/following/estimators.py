@@ -388,8 +388,7 @@ def _tracker_update(state, det, lm, km, params):
         found = to_best | keep | reacquire
         # Whom to look at while the user is not measured: detected now, identity open.
         open_ = confirmed & (tr.misses == 0) & (jnp.abs(logodds) < _SWITCH)
-        cand = jnp.argmin(jnp.where(open_, jnp.sum((tr.mean[:, :2] - pred[:2]) ** 2, -1),
-                                    jnp.inf))
+        cand = jnp.argmin(jnp.where(open_, d2, jnp.inf))
         look, look_ok = tr.mean[cand, :2], open_[cand] & ~(found & (tr.misses[slot] == 0))
     else:
         d2 = jnp.where(live, d2, jnp.inf)
