@@ -1055,8 +1055,6 @@ def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
     return _Salvage(conns, msgs, counts, stopped, "; ".join(notes), False)
 
 
-
-
 def _scan_mcap(f, buf, topic) -> _Salvage:
     if buf[:8] != b"\x89MCAP0\r\n":
         raise BagError(f"{f} is not an MCAP file: bad magic")
