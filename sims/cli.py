@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
-    follow.add_argument("--estimator", choices=("pf", "gnn", "jpda", "nnjpda", "kf"),
+    follow.add_argument("--estimator", choices=("pf", "gnn", "jpda", "nnjpda", "kf", "truth"),
                         default="pf")
     follow.add_argument("--follower", choices=("A", "B"), default="A",
                         help="follower point: A = (1.5, 0), B = (1, 1) m in the robot frame")

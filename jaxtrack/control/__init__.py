@@ -1,6 +1,7 @@
 """Controllers: pose reaching (seed 000, Algorithm 1), unicycle person following with a follower
-point (seed 004, eq. 9) and the person-interest-adapted potential field (seed 002, II-C)."""
+point (seed 004, eq. 9), the person-interest-adapted potential field (seed 002, II-C), a dynamic
+window for obstacles, and routes around the static obstacles of a map."""
 
-from jaxtrack.control import avoidance, follower, pose, potential_field
+from jaxtrack.control import avoidance, follower, pose, potential_field, route
 
-__all__ = ["avoidance", "follower", "pose", "potential_field"]
+__all__ = ["avoidance", "follower", "pose", "potential_field", "route"]

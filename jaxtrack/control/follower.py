@@ -199,10 +199,14 @@ def error(robot_pose: Array, person_pos: Array, point, frame: str = "world") -> 
 def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Array | None,
             prev_u: Array | None, dt, obstacles: Array | None = None,
             obstacle_mask: Array | None = None, *, frame: str = "world",
-            stop_mode: str = "halt", singular_eps=1e-2) -> Array:
+            stop_mode: str = "halt", singular_eps=1e-2, reverse: bool = True) -> Array:
     r"""Seed 004's follower law (eq. 9) with limits and a safety stop.
 
-    :math:`u^* = -M^{-1}[K \tilde p - R(\theta_m)^T \dot x_r]`, then scaled into
+    :math:`u^* = -M^{-1}[K \tilde p - R(\theta_m)^T \dot x_r]`; for a robot that does not
+    drive backwards (``reverse=False``), a law asking for :math:`v < 0` gets :math:`v = 0` and
+    a turn on the spot toward the person instead: :math:`\omega^*` itself while the person is
+    in front of the robot's axle, :math:`k_2 \beta` (:math:`\beta` the person's bearing) when
+    behind it, where :math:`\omega^*` vanishes for a person straight behind. Then scaled into
     :math:`|v| \le v_{max}, |\omega| \le \omega_{max}`, then (if ``prev_u`` is given) its change
     scaled into :math:`|\Delta v| \le a_{max} dt, |\Delta \omega| \le \alpha_{max} dt`, then the
     safety stop. Inside traced code a non-finite input gives ``u = 0`` (at the boundary, with
@@ -223,6 +227,10 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
       frame: ``"world"`` or ``"robot"``.
       stop_mode: ``"halt"`` (u = 0), ``"rotate"`` (v = 0, keep omega) or ``"none"``.
       singular_eps: :math:`\epsilon` of the regularised :math:`1 / P_{fm,1}` (m).
+      reverse: whether the robot may drive backwards. Without this, clipping the law's
+        :math:`v < 0` after the velocity limits would also shrink the turn that the (larger)
+        backward speed scaled down: a robot whose user walked past it turned at a tenth of its
+        rate.
 
     Returns:
       u: [2] (v, omega).
@@ -267,6 +275,8 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
     person_vel = jnp.where(valid, person_vel, 0.0)
 
     u = _law(params, robot_pose, person_pos, person_vel, frame, singular_eps)
+    if not reverse:
+        u = _forward_only(params, u, robot_pose, person_pos, frame)
     u = _limit_velocity(u, params)
     if prev_u is not None:
         prev = jnp.asarray(prev_u, dtype)
@@ -396,6 +406,16 @@ def _law(params, robot_pose, person_pos, person_vel, frame, singular_eps):
     omega = -b[1] * inv_p1
     v = -b[0] - p2 * b[1] * inv_p1
     return jnp.stack([v, omega])
+
+
+def _forward_only(params, u, robot_pose, person_pos, frame):
+    """``v < 0`` of the law replaced by a turn on the spot (see `control`)."""
+    rel = person_pos if frame == "robot" else _rotate(-robot_pose[2], person_pos - robot_pose[:2])
+    bearing = jnp.arctan2(rel[1], rel[0])
+    k2 = gains(params)[1].astype(u.dtype)
+    omega = jnp.where(rel[0] >= 0.0, u[1], k2 * bearing)
+    back = u[0] < 0.0
+    return jnp.stack([jnp.maximum(u[0], 0.0), jnp.where(back, omega, u[1])])
 
 
 def _shrink(x, limit):

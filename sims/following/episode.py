@@ -43,6 +43,7 @@ import numpy as np
 
 from jaxtrack import metrics as jmetrics
 from jaxtrack.control import avoidance, follower
+from jaxtrack.control import route as route_mod
 from jaxtrack.perception import legs
 from sims.following import estimators, lidar, pedestrians
 from sims.following import rgbd as rgbd_mod
@@ -95,6 +96,14 @@ class EpisodeConfig:
         ``avoidance_stride``: every how many beams it checks.
       reverse: allow the robot to drive backwards (its laser sees 240 deg to the front, nothing
         behind: by default it never reverses, and turns instead).
+      route: when the straight line to the user's estimate passes within
+        ``route_clearance`` of a table or chair of the map, steer to a waypoint of the
+        shortest route to them instead (`jaxtrack.control.route`, a grid of ``route_cell`` m
+        whose cells keep ``robot_radius + safety_margin + 0.05`` from furniture and walls,
+        precomputed once per map); the follower law then brings the robot itself, not its
+        follower point, to the waypoint. Measured with the true user as the estimate (64
+        episodes, no distractors), blocked straight lines were 86 % of the squared following
+        error.
       dtype: float dtype of the estimators and metrics.
     """
 
@@ -119,6 +128,9 @@ class EpisodeConfig:
     avoidance: bool = True
     avoidance_stride: int = 2
     reverse: bool = False
+    route: bool = True
+    route_cell: float = 0.25
+    route_clearance: float = 0.3
     dtype: object = jnp.float32
 
     @property
@@ -280,6 +292,13 @@ def make_rollout(config: EpisodeConfig):
     map_outline = jnp.asarray(_outline_points(sc.furniture), dtype)
     robot_radius = sc.robot_radius
     multi = ecfg.kind in ("gnn", "jpda", "nnjpda")
+    routes = None
+    if config.route and map_outline.shape[0]:
+        W, H = sc.room
+        routes = route_mod.build(np.asarray(map_outline), ((-W / 2, W / 2), (-H / 2, H / 2)),
+                                 cell=config.route_cell,
+                                 clearance=robot_radius + config.safety_margin + 0.05,
+                                 dtype=dtype)
 
     def rollout(key, params: EpisodeParams):
         k_init, k_est, k_col, k_run = jax.random.split(key, 4)
@@ -331,8 +350,13 @@ def make_rollout(config: EpisodeConfig):
             rgbd_xy = estimators.from_frame(odom, rd.xy.astype(dtype))
             detected = estimators.Detected(laser_xy, laser_mask, rgbd_xy, rd.mask,
                                            rd.colour.astype(dtype))
+            truth = None
+            if ecfg.kind == "truth":
+                truth = jnp.concatenate([
+                    estimators.from_frame(odom, estimators.to_frame(pose, people.pos[0])),
+                    estimators.rotate(odom[2] - pose[2], people.vel[0])]).astype(dtype)
             est, e = estimators.update(ks[4], c.est, detected, odom, delta[2] / dt,
-                                       delta[0] / dt, params.estimator)
+                                       delta[0] / dt, params.estimator, truth=truth)
             # Control in the robot frame.
             unseen = jnp.where(e.user_found, 0.0, c.unseen + dt)
             rel = estimators.to_frame(odom, e.user[:2])
@@ -341,16 +365,29 @@ def make_rollout(config: EpisodeConfig):
             corridor = (pts[:, 0] > 0) & (jnp.abs(pts[:, 1]) < robot_radius + 0.05)
             obstacles = pts + jnp.asarray(lcfg.mount, dtype)
             fol = params.follower
+            known = estimators.to_frame(pose, map_outline)
+            goal, goal_vel = rel, vel
+            if routes is not None:
+                wp, direct = route_mod.waypoint(
+                    routes, pose[:2], estimators.from_frame(pose, rel), map_outline,
+                    clearance=robot_radius + config.safety_margin,
+                    direct_clearance=config.route_clearance)
+                wp = estimators.to_frame(pose, wp)
+                # Off the straight line the robot itself (not its follower point) drives to
+                # the waypoint.
+                reach = wp + _norm(fol.point) * wp / jnp.maximum(_norm(wp), 1e-3)
+                goal = jnp.where(direct, rel, reach)
+                goal_vel = jnp.where(direct, vel, 0.0)
             blocked = follower.safety_stop(jnp.zeros(3, dtype), obstacles, valid & corridor,
                                            fol.stop_distance, frame="robot")
-            u = follower.control(fol, jnp.zeros(3, dtype), rel, vel, c.u, dt, frame="robot")
+            u = follower.control(fol, jnp.zeros(3, dtype), goal, goal_vel, c.u, dt, frame="robot",
+                                reverse=config.reverse)
             if config.avoidance:
                 ap = avoidance.AvoidanceParams(
                     radius=robot_radius, margin=config.safety_margin, horizon=1.0,
                     v_max=fol.v_max, omega_max=fol.omega_max, a_max=fol.a_max,
                     alpha_max=fol.alpha_max, dt=dt, allow_reverse=config.reverse)
                 stride = config.avoidance_stride
-                known = estimators.to_frame(pose, map_outline)
                 # The user walks ahead and is no obstacle to plan around (the safety stop
                 # still guards them): returns within 0.45 m of their estimate are left out.
                 seen = obstacles[::stride]

@@ -12,7 +12,9 @@ detector and by the RGB-D detector in that frame, and return the user's estimate
   (kept by id; re-acquired as the track nearest to the last estimate when it dies);
 - ``"kf"`` (seed 002): the 6-state Kalman filter of the user in the *robot* frame with the
   odometry-driven rotation input (eqs. 4-11), measurements the nearest gated detection and the
-  odometry velocity, and the adaptive AR heading filter (eqs. 12-13).
+  odometry velocity, and the adaptive AR heading filter (eqs. 12-13);
+- ``"truth"``: no estimation, the true user (the episode passes it): what the controller
+  achieves with perfect perception, the floor of the following error.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ Array = jax.Array
 __all__ = ["ESTIMATORS", "EstimatorConfig", "EstimatorParams", "Estimate", "Detected", "init",
            "update", "to_frame", "from_frame", "rotate"]
 
-ESTIMATORS = ("pf", "gnn", "jpda", "nnjpda", "kf")
+ESTIMATORS = ("pf", "gnn", "jpda", "nnjpda", "kf", "truth")
 SENSORS = ("both", "laser", "rgbd")
 
 
@@ -213,6 +215,8 @@ def init(key: Array, params: EstimatorParams, user_xy: Array, odom_pose: Array,
     if cfg.kind == "pf":
         # Births are drawn around at most 16 of the last scan's detections (laser + RGB-D).
         return people_pf.init(key, params.pf, user_xy, max_births=16)
+    if cfg.kind == "truth":
+        return jnp.zeros((), dtype)
     if cfg.kind == "kf":
         rel = to_frame(jnp.asarray(odom_pose, dtype), user_xy)
         mean = jnp.concatenate([rel, jnp.zeros(4, dtype)])
@@ -236,11 +240,21 @@ def init(key: Array, params: EstimatorParams, user_xy: Array, odom_pose: Array,
 
 
 def update(key: Array, state, det: Detected, odom_pose: Array, odom_rate: Array,
-           odom_speed: Array, params: EstimatorParams):
+           odom_speed: Array, params: EstimatorParams, truth: Array | None = None):
     """One 10 Hz frame. ``odom_pose`` [3]: robot pose in the odometry frame after the motion;
     ``odom_rate``, ``odom_speed``: the odometry's turn rate (rad/s) and forward speed (m/s) over
-    the last period. Returns ``(state, Estimate)``."""
+    the last period; ``truth`` [4]: the true user ``[p_x, p_y, v_x, v_y]`` in the odometry
+    frame (needed by, and only used by, ``"truth"``). Returns ``(state, Estimate)``."""
     cfg = params.config
+    if cfg.kind == "truth":
+        if truth is None:
+            raise ValueError('the "truth" estimator needs the true user (truth=[4])')
+        _checks.check_shape("truth", truth, (4,), "(p_x, p_y, v_x, v_y)")
+        truth = jnp.asarray(truth, state.dtype)
+        none = jnp.zeros((1, 2), state.dtype)
+        return state, Estimate(truth, jnp.array(True), jnp.arctan2(truth[3], truth[2]),
+                               jnp.int32(0), none, jnp.full(1, -1, jnp.int32),
+                               jnp.zeros(1, bool))
     lm, km = _sensor_masks(cfg, det)
     if cfg.kind == "pf":
         scans = (people_pf.Scan(det.laser_xy, lm, jnp.asarray(cfg.laser_fov)),

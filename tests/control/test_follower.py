@@ -177,6 +177,48 @@ def test_limits_hold_and_keep_the_curvature_of_the_law():
     np.testing.assert_allclose(control_free_batch(params, *near), inside, rtol=1e-12)
 
 
+control_fwd_batch = jax.jit(jax.vmap(
+    lambda p, pose, x, v: follower.control(p, pose, x, v, None, 0.1, reverse=False),
+    in_axes=(None, 0, 0, 0)))
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_forward_only_robot_turns_on_the_spot_instead_of_backing_up(dtype):
+    rng = np.random.default_rng(7)
+    k2, w_max = 1.3, 2.0
+    params = follower.Params.create(k1=0.9, k2=k2, point="A", v_max=1.5, omega_max=w_max,
+                                    a_max=INF, alpha_max=INF, dtype=dtype)
+    free = free_params(0.9, k2, "A", dtype)
+    n = 256
+    pose = jnp.asarray(rng.uniform([-2, -2, -np.pi], [2, 2, np.pi], (n, 3)), dtype)
+    person = jnp.asarray(rng.uniform(-4, 4, (n, 2)), dtype)
+    vel = jnp.asarray(0.3 * rng.normal(size=(n, 2)), dtype)
+    law = np.asarray(control_free_batch(free, pose, person, vel), float)
+    both = np.asarray(control_free_batch(params, pose, person, vel), float)
+    fwd = np.asarray(control_fwd_batch(params, pose, person, vel), float)
+    tol = 1e-5 if dtype == jnp.float32 else 1e-12
+    ahead = law[:, 0] >= 0
+    assert 20 < ahead.sum() < n - 20
+    # A law that drives forward is untouched.
+    np.testing.assert_allclose(fwd[ahead], both[ahead], rtol=tol, atol=tol)
+    # A law that backs up: v = 0, and a turn not shrunk by the backward speed.
+    p = np.asarray(pose, float)
+    rel = person - p[:, :2]
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    x, y = c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]
+    expect = np.where(x >= 0, law[:, 1], k2 * np.arctan2(y, x))
+    expect = np.clip(expect, -w_max, w_max)
+    np.testing.assert_allclose(fwd[~ahead, 0], 0.0, atol=tol)
+    np.testing.assert_allclose(fwd[~ahead, 1], expect[~ahead], rtol=10 * tol, atol=10 * tol)
+    # Behind the robot the law's own turn is far smaller: the case the rule exists for.
+    behind = ~ahead & (x < 0) & (np.abs(np.arctan2(y, x)) > 2.0)
+    assert behind.sum() > 5
+    assert np.all(np.abs(fwd[behind, 1]) >= np.minimum(k2 * 2.0, w_max) - tol)
+    # Clipping v at 0 after the limits (what the rule replaces) turned at a fraction of this.
+    assert np.all(np.abs(fwd[behind, 1]) >= np.abs(both[behind, 1]) - tol)
+    assert np.median(np.abs(both[behind, 1])) < 0.4 * w_max
+
+
 def test_singular_follower_point_raises_when_static_and_is_regularised_when_traced():
     with pytest.raises(ValueError, match="P_fm1 = 0"):
         follower.Params.create(point=(0.0, 1.0))

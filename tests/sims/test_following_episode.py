@@ -46,6 +46,26 @@ def test_rollout_shapes_and_physics(run):
     assert d.min() > cfg.scene.robot_radius
 
 
+def test_truth_estimator_hands_the_controller_the_true_user():
+    sc = scene.build(num_people=3)
+    cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="truth"), distractors=2,
+                           duration=2.0)
+    params = ep.make_params(cfg)
+    f, sw = jax.jit(ep.make_rollout(cfg))(jax.random.PRNGKey(5), params)
+    err = np.linalg.norm(np.asarray(f.user_estimate) - np.asarray(f.people)[:, 0], axis=-1)
+    assert err.max() < 1e-4  # through the odometry frame and back, in float32
+    m = ep.summarize(cfg, f, sw)
+    assert float(m["lost_fraction"]) == 0.0 and np.isnan(float(m["mota"]))
+    assert not np.any(np.asarray(f.hyp_mask))
+    with pytest.raises(ValueError, match="true user"):
+        est = estimators.init(jax.random.PRNGKey(0), params.estimator, jnp.zeros(2),
+                              jnp.zeros(3))
+        det = estimators.Detected(jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros((1, 2)),
+                                  jnp.zeros(1, bool), jnp.zeros((1, 3)))
+        estimators.update(jax.random.PRNGKey(0), est, det, jnp.zeros(3), 0.0, 0.0,
+                          params.estimator)
+
+
 def test_metrics_match_direct_recomputation(run):
     motmetrics = pytest.importorskip("motmetrics")
     cfg, params, frames, switched = run
