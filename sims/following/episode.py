@@ -25,7 +25,7 @@ Metrics (per episode; the frames are ``T = duration / control_dt``):
   it, if any) changes from one person to another;
 - ``mota``, ``motp``, ``mot_switches`` (multi-target estimators; NaN otherwise): CLEAR MOT of
   the confirmed tracks, with as ground truth the people inside the laser's field of view and range
-  and not fully occluded (some beam reaches one of their legs), threshold 0.5 m;
+  and not fully occluded (some beam's return is one of their legs), threshold 0.5 m;
 - ``near_fraction``: fraction of frames any person's centre is within 0.45 m (Hall's intimate
   zone) of the robot's body (its collision disc);
 - ``stop_fraction``: fraction of frames the safety stop held the robot.
@@ -34,7 +34,6 @@ Metrics (per episode; the frames are ``T = duration / control_dt``):
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import NamedTuple
 
 import jax
@@ -240,17 +239,20 @@ def _wall_distance(xy, segments):
 
 
 def _visible(ranges, laser_pose, leg_xy, leg_r, cfg):
-    """[P] a person is visible when the beam nearest to one of its legs reaches that leg."""
-    rel = estimators.to_frame(laser_pose, leg_xy)  # [P, 2, 2]
-    dist = _norm(rel)
-    bearing = jnp.arctan2(rel[..., 1], rel[..., 0])
-    step = math.radians(cfg.step_deg)
-    half = 0.5 * (cfg.num_beams - 1)
-    idx = jnp.round(bearing / step + half).astype(jnp.int32)
-    inside = (idx >= 0) & (idx < cfg.num_beams) & (dist - leg_r < cfg.max_range) & (leg_r > 0)
-    r = ranges[jnp.clip(idx, 0, cfg.num_beams - 1)]
-    reached = r >= dist - leg_r - 0.05
-    return jnp.any(inside & reached, -1)
+    """[P] a person is visible (not fully occluded) when some beam's return is one of their
+    legs: the beam crosses the leg's cross-section within range, and reads no shorter than
+    where it enters it (less 5 cm for the range noise)."""
+    P = leg_xy.shape[0]
+    angles = lidar.beam_angles(cfg, leg_xy.dtype)
+    none = lidar.Walls(jnp.zeros((0, 2, 2), leg_xy.dtype), jnp.zeros(0, bool))
+
+    def entry(xy, r):  # [B] distance along each beam to the leg (max_range: missed)
+        return lidar.cast(laser_pose, angles, lidar.Circles(xy[None], r[None], (r > 0)[None]),
+                          none, cfg.max_range)
+
+    t = jax.vmap(entry)(leg_xy.reshape(-1, 2), leg_r.reshape(-1))          # [2P, B]
+    seen = (t < cfg.max_range) & (ranges[None] >= t - 0.05)
+    return jnp.any(seen.reshape(P, -1), -1)
 
 
 def laser_geometry(sc: scene_mod.Scene, lcfg: lidar.LaserConfig, dtype):

@@ -46,6 +46,47 @@ def test_rollout_shapes_and_physics(run):
     assert d.min() > cfg.scene.robot_radius
 
 
+def first_hit_owner(origin, angles, centres, radii, max_range):
+    """[B] index of the circle each beam hits first (-1: none), by numpy ray-circle roots."""
+    d = np.stack([np.cos(angles), np.sin(angles)], -1)
+    m = origin - centres                                   # [C, 2]
+    b = d @ m.T                                            # [B, C]
+    disc = b**2 - ((m**2).sum(-1) - radii**2)[None]
+    t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0)), np.inf)
+    t = np.where(t >= 0, t, np.inf)
+    owner = np.argmin(t, 1)
+    return np.where(t[np.arange(len(angles)), owner] < max_range, owner, -1)
+
+
+def test_ground_truth_visibility_is_any_beam_whose_return_is_a_leg():
+    from sims.following import lidar
+    lcfg = lidar.LaserConfig()
+    angles = np.asarray(lidar.beam_angles(lcfg, jnp.float64))
+    rng = np.random.default_rng(11)
+    P = 6
+    checked = {True: 0, False: 0}
+    for _ in range(20):
+        centre = rng.uniform([0.8, -2.5], [4.5, 2.5], (P, 2))
+        # Crowd the people along a few bearings so that some hide others, wholly or in part.
+        centre[3:] = centre[:3] * rng.uniform(1.3, 1.8, (3, 1)) + rng.normal(0, 0.05, (3, 2))
+        legs = centre[:, None] + np.array([[0.0, 0.1], [0.0, -0.1]]) + rng.normal(0, 0.03,
+                                                                                   (P, 2, 2))
+        radii = np.full((P, 2), 0.06)
+        circles = lidar.Circles(jnp.asarray(legs.reshape(-1, 2)), jnp.asarray(radii.ravel()),
+                                jnp.ones(2 * P, bool))
+        walls = lidar.Walls(jnp.zeros((0, 2, 2)), jnp.zeros(0, bool))
+        ranges = lidar.cast(jnp.zeros(3), jnp.asarray(angles), circles, walls, lcfg.max_range)
+        got = np.asarray(ep._visible(ranges, jnp.zeros(3), jnp.asarray(legs),
+                                     jnp.asarray(radii), lcfg))
+        owner = first_hit_owner(np.zeros(2), angles, legs.reshape(-1, 2), radii.ravel(),
+                                lcfg.max_range)
+        ref = np.array([np.any(owner // 2 == p) for p in range(P)])
+        np.testing.assert_array_equal(got, ref)
+        for v in ref:
+            checked[bool(v)] += 1
+    assert checked[True] > 20 and checked[False] > 5  # both cases occur
+
+
 def test_truth_estimator_hands_the_controller_the_true_user():
     sc = scene.build(num_people=3)
     cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="truth"), distractors=2,
