@@ -227,10 +227,9 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
       frame: ``"world"`` or ``"robot"``.
       stop_mode: ``"halt"`` (u = 0), ``"rotate"`` (v = 0, keep omega) or ``"none"``.
       singular_eps: :math:`\epsilon` of the regularised :math:`1 / P_{fm,1}` (m).
-      reverse: whether the robot may drive backwards. Without this, clipping the law's
-        :math:`v < 0` after the velocity limits would also shrink the turn that the (larger)
-        backward speed scaled down: a robot whose user walked past it turned at a tenth of its
-        rate.
+      reverse: whether the robot may drive backwards. With ``False`` the backward speed is
+        dropped before the velocity limits: clipping it after them would leave the turn scaled
+        down with it (a robot whose user had walked past it turned at about 0.1 rad/s).
 
     Returns:
       u: [2] (v, omega).

@@ -144,6 +144,9 @@ class EpisodeConfig:
                              f"{self.scene.num_people}")
         if self.distractors < 0 or self.duration <= 0 or self.control_dt <= 0:
             raise ValueError("distractors must be >= 0, duration and control_dt > 0")
+        if not (self.route_cell > 0 and self.route_clearance >= 0):
+            raise ValueError(f"route_cell must be > 0 and route_clearance >= 0; got "
+                             f"{self.route_cell}, {self.route_clearance}")
 
 
 class EpisodeParams(NamedTuple):
@@ -378,7 +381,6 @@ def make_rollout(config: EpisodeConfig):
             corridor = (pts[:, 0] > 0) & (jnp.abs(pts[:, 1]) < robot_radius + 0.05)
             obstacles = pts + jnp.asarray(lcfg.mount, dtype)
             fol = params.follower
-            known = estimators.to_frame(pose, map_outline)
             goal, goal_vel = rel, vel
             if routes is not None:
                 wp, direct = route_mod.waypoint(
@@ -401,6 +403,7 @@ def make_rollout(config: EpisodeConfig):
                     v_max=fol.v_max, omega_max=fol.omega_max, a_max=fol.a_max,
                     alpha_max=fol.alpha_max, dt=dt, allow_reverse=config.reverse)
                 stride = config.avoidance_stride
+                known = estimators.to_frame(pose, map_outline)
                 # The user walks ahead and is no obstacle to plan around (the safety stop
                 # still guards them): returns within 0.45 m of their estimate are left out.
                 seen = obstacles[::stride]

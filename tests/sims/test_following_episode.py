@@ -146,6 +146,10 @@ def test_bad_configuration():
         ep.EpisodeConfig(sc, distractors=4)
     with pytest.raises(ValueError, match="estimator"):
         estimators.EstimatorConfig(kind="particle")
+    with pytest.raises(ValueError, match="route_cell"):
+        ep.EpisodeConfig(sc, distractors=1, route_cell=0.0)
+    with pytest.raises(ValueError, match="route_clearance"):
+        ep.EpisodeConfig(sc, distractors=1, route_clearance=-0.1)
 
 
 def test_cli_rejects_bad_arguments(capsys):
