@@ -6,7 +6,8 @@
 
 The timing run compiles ``vmap(episode)`` once per estimator for a batch of ``--episodes`` and
 reports the compile time, the wall time of the batch, microseconds per 10 Hz step per episode
-and simulated seconds per wall second, with the episode metrics (float32).
+and simulated seconds per wall second, with the episode metrics (float32). The ``truth``
+estimator (the controller given the true user) gives the floor of the following error.
 
 ``--gradcheck`` differentiates the mean following RMS error over ``--episodes`` episodes (common
 random numbers) with respect to ``log k1``, ``log k2`` (follower gains) and the log measurement
@@ -105,7 +106,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--episodes", type=int, default=None)
     p.add_argument("--duration", type=float, default=None)
-    p.add_argument("--estimators", default="kf,pf,gnn,jpda,nnjpda")
+    p.add_argument("--estimators", default="kf,pf,gnn,jpda,nnjpda,truth")
     p.add_argument("--people", type=int, default=4)
     p.add_argument("--gradcheck", action="store_true")
     p.add_argument("--fd-step", type=float, default=0.05)
