@@ -172,7 +172,9 @@ def waypoint(route: Route, start: Array, goal: Array, obstacles: Array,
       lookahead: route cells looked ahead (static).
 
     Returns:
-      ``(waypoint [2], direct)``: ``direct`` is True when the waypoint is the goal itself.
+      ``(waypoint [2], direct)``: ``direct`` is True when the waypoint is the goal itself (a
+      clear straight line, or no route: start and goal in one cell, or in unconnected free
+      space).
     """
     _checks.check_shape("start", start, (2,), "(x, y)")
     _checks.check_shape("goal", goal, (2,), "(x, y)")
@@ -200,6 +202,7 @@ def waypoint(route: Route, start: Array, goal: Array, obstacles: Array,
     k = jnp.arange(int(lookahead))
     far = jnp.argmax(jnp.where(clear[1:], k, -1))
     wp = jnp.where(jnp.any(clear[1:]), route.centres[path[far]], route.centres[path[0]])
-    stuck = s == g
-    direct = direct | stuck
+    # Same cell, or no route (the goal's free space is cut off): steer at the goal itself.
+    no_route = (s == g) | (path[0] == s)
+    direct = direct | no_route
     return jnp.where(direct, goal, wp), direct

@@ -165,6 +165,17 @@ def test_segment_clear_matches_dense_sampling():
     np.testing.assert_array_equal(away, [True, False])
 
 
+def test_without_a_route_the_waypoint_is_the_goal():
+    # A wall across the whole room: the two halves are not connected.
+    y = np.arange(-2.0, 2.0 + 1e-9, 0.05)
+    wall = np.stack([np.zeros_like(y), y], -1)
+    rt = route.build(wall, BOUNDS, cell=CELL, clearance=CLEAR)
+    goal = jnp.array([1.5, 0.0])
+    wp, direct = waypoint(rt, jnp.array([-1.5, 0.0]), goal, jnp.asarray(wall))
+    assert bool(direct)
+    np.testing.assert_allclose(wp, goal)
+
+
 def test_waypoint_vmaps_like_a_loop(wall_route):
     rng = np.random.default_rng(5)
     obst = jnp.asarray(wall_points())
@@ -192,3 +203,59 @@ def test_bad_input_raises_clear_errors(wall_route):
         route.waypoint(wall_route, jnp.zeros(2), jnp.ones(2), jnp.zeros((1, 2)), lookahead=0)
     with pytest.raises(ValueError, match="start"):
         route.waypoint(wall_route, jnp.zeros(3), jnp.ones(2), jnp.zeros((1, 2)))
+
+
+def cup_points():
+    """A cup open toward -x (the robot's side): back wall at x = 0.5, arms to x = -1."""
+    ys = np.arange(-1.5, 1.5 + 1e-9, 0.1)
+    xs = np.arange(-1.0, 0.5, 0.1)
+    return np.concatenate([np.stack([np.full_like(ys, 0.5), ys], -1),
+                           np.stack([xs, np.full_like(xs, 1.5)], -1),
+                           np.stack([xs, np.full_like(xs, -1.5)], -1)])
+
+
+def closed_loop(use_route, steps=400, dt=0.1):
+    """Follower law + (route) + dynamic window on a unicycle; a person stands behind the cup."""
+    from jaxtrack.control import avoidance, follower
+
+    obst = jnp.asarray(cup_points())
+    rt = route.build(cup_points(), ((-4.0, 4.0), (-4.0, 4.0)), cell=0.25, clearance=0.65)
+    fp = follower.Params.create(point="A", v_max=1.0, omega_max=1.5, a_max=1.5, alpha_max=3.0)
+    ap = avoidance.AvoidanceParams(radius=0.3, margin=0.3, horizon=1.0, v_max=1.0,
+                                   omega_max=1.5, a_max=1.5, alpha_max=3.0, dt=dt)
+    person = jnp.array([2.5, 0.0])
+    point = jnp.asarray(fp.point)
+
+    def body(carry, _):
+        pose, prev = carry
+        goal = person
+        if use_route:
+            wp, direct = route.waypoint(rt, pose[:2], person, obst)
+            away = wp - pose[:2]
+            reach = wp + jnp.linalg.norm(point) * away / jnp.maximum(jnp.linalg.norm(away), 1e-3)
+            goal = jnp.where(direct, person, reach)
+        u = follower.control(fp, pose, goal, jnp.zeros(2), prev, dt, reverse=False)
+        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+        d = obst - pose[:2]
+        local = jnp.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1)
+        u, _ = avoidance.select(ap, u, prev, local, jnp.ones(local.shape[0], bool))
+        pose = follower.unicycle_step(pose, u, dt)
+        return (pose, u), pose
+
+    run = jax.jit(lambda: jax.lax.scan(body, (jnp.array([-2.5, 0.0, 0.0]), jnp.zeros(2)), None,
+                                       length=steps)[1])
+    return np.asarray(run()), np.asarray(person)
+
+
+def test_route_leads_a_follower_out_of_the_cup_a_straight_law_is_trapped_in():
+    for use_route in (True, False):
+        poses, person = closed_loop(use_route)
+        th = poses[:, 2]
+        follow_pt = poses[:, :2] + 1.5 * np.stack([np.cos(th), np.sin(th)], -1)
+        err = np.linalg.norm(follow_pt - person, axis=-1)
+        clearance = np.sqrt(((poses[:, None, :2] - cup_points()[None]) ** 2).sum(-1)).min()
+        assert clearance > 0.3  # the body never touches the cup
+        if use_route:
+            assert err[-50:].max() < 0.3, err[-50:].max()
+        else:
+            assert err[-50:].min() > 1.5, err[-50:].min()
