@@ -197,11 +197,9 @@ def waypoint(route: Route, start: Array, goal: Array, obstacles: Array,
     _, path = jax.lax.scan(hop, s, None, length=int(lookahead))
     direct = segment_clear(start, goal[None], obstacles, obstacle_mask,
                            clearance if direct_clearance is None else direct_clearance)[0]
-    clear = jnp.concatenate([direct[None], segment_clear(start, route.centres[path],
-                                                         obstacles, obstacle_mask, clearance)])
-    k = jnp.arange(int(lookahead))
-    far = jnp.argmax(jnp.where(clear[1:], k, -1))
-    wp = jnp.where(jnp.any(clear[1:]), route.centres[path[far]], route.centres[path[0]])
+    reachable = segment_clear(start, route.centres[path], obstacles, obstacle_mask, clearance)
+    far = jnp.argmax(jnp.where(reachable, jnp.arange(int(lookahead)), -1))
+    wp = jnp.where(jnp.any(reachable), route.centres[path[far]], route.centres[path[0]])
     # Same cell, or no route (the goal's free space is cut off): steer at the goal itself.
     no_route = (s == g) | (path[0] == s)
     direct = direct | no_route
