@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxtrack.control import route
+from jaxtrack.control import avoidance, follower, route
 
 BOUNDS = ((-3.0, 3.0), (-2.0, 2.0))
 CELL, CLEAR = 0.25, 0.45
@@ -216,8 +216,6 @@ def cup_points():
 
 def closed_loop(use_route, steps=400, dt=0.1):
     """Follower law + (route) + dynamic window on a unicycle; a person stands behind the cup."""
-    from jaxtrack.control import avoidance, follower
-
     obst = jnp.asarray(cup_points())
     rt = route.build(cup_points(), ((-4.0, 4.0), (-4.0, 4.0)), cell=0.25, clearance=0.65)
     fp = follower.Params.create(point="A", v_max=1.0, omega_max=1.5, a_max=1.5, alpha_max=3.0)

@@ -98,11 +98,10 @@ def test_truth_estimator_hands_the_controller_the_true_user():
     m = ep.summarize(cfg, f, sw)
     assert float(m["lost_fraction"]) == 0.0 and np.isnan(float(m["mota"]))
     assert not np.any(np.asarray(f.hyp_mask))
+    est = estimators.init(jax.random.PRNGKey(0), params.estimator, jnp.zeros(2), jnp.zeros(3))
+    det = estimators.Detected(jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros((1, 2)),
+                              jnp.zeros(1, bool), jnp.zeros((1, 3)))
     with pytest.raises(ValueError, match="true user"):
-        est = estimators.init(jax.random.PRNGKey(0), params.estimator, jnp.zeros(2),
-                              jnp.zeros(3))
-        det = estimators.Detected(jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros((1, 2)),
-                                  jnp.zeros(1, bool), jnp.zeros((1, 3)))
         estimators.update(jax.random.PRNGKey(0), est, det, jnp.zeros(3), 0.0, 0.0,
                           params.estimator)
 
