@@ -1,0 +1,92 @@
+"""Run every benchmark in turn and keep each one's output.
+
+Usage:
+  python benchmarks/run_all.py                  # full runs (about 1 h on an idle 2-core machine)
+  python benchmarks/run_all.py --quick          # smoke sizes (a few minutes)
+  python benchmarks/run_all.py --only particle,filters
+  python benchmarks/run_all.py --gradcheck      # also the closed-loop gradient checks
+
+Each script's output goes to ``benchmarks/results/<UTC date>/<name>.log`` (and to the terminal);
+a summary of exit codes and wall times ends the run. The exit code is non-zero when any
+benchmark failed. Run from the benchmark environment (see README.md, "Running").
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+# name -> (script, full-size arguments, quick arguments)
+BENCHMARKS = {
+    "filters": ("filters.py", [], ["--quick"]),
+    "particle": ("particle.py", [], ["--quick"]),
+    "association": ("association.py", [], ["--quick"]),
+    "following": ("following.py", [], ["--episodes", "8", "--duration", "10"]),
+    "following_sensors": ("following_sensors.py", [], ["--episodes", "8", "--repeats", "2"]),
+    "humanoid": ("humanoid.py", [], ["--episodes", "2"]),
+}
+GRADCHECKS = {
+    "following_gradcheck": ("following.py", ["--gradcheck"],
+                            ["--gradcheck", "--episodes", "2", "--duration", "2"]),
+    "humanoid_gradcheck": ("humanoid.py", ["--gradcheck"],
+                           ["--gradcheck", "--episodes", "2", "--frames", "10"]),
+}
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="smoke-test sizes")
+    p.add_argument("--only", default="", help="comma-separated names (default: all): "
+                   + ", ".join([*BENCHMARKS, *GRADCHECKS]))
+    p.add_argument("--gradcheck", action="store_true", help="also run the gradient checks")
+    p.add_argument("--out", type=Path, default=None,
+                   help="log directory (default benchmarks/results/<UTC date>)")
+    return p.parse_args(argv)
+
+
+def selected(args) -> dict:
+    table = dict(BENCHMARKS)
+    if args.gradcheck or args.only:
+        table.update(GRADCHECKS)
+    if args.only:
+        names = [n.strip() for n in args.only.split(",") if n.strip()]
+        unknown = sorted(set(names) - set(table))
+        if unknown:
+            raise SystemExit(f"unknown benchmark(s) {unknown}; choose from {sorted(table)}")
+        table = {n: table[n] for n in names}
+    return table
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    table = selected(args)
+    out = args.out or HERE / "results" / dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
+    out.mkdir(parents=True, exist_ok=True)
+    summary = []
+    for i, (name, (script, full, quick)) in enumerate(table.items(), 1):
+        cmd = [sys.executable, str(HERE / script), *(quick if args.quick else full)]
+        print(f"\n=== [{i}/{len(table)}] {name}: {' '.join(cmd[1:])}", flush=True)
+        t0 = time.perf_counter()
+        with open(out / f"{name}.log", "w") as log:
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    text=True, bufsize=1)
+            for line in proc.stdout:
+                sys.stdout.write(line)
+                log.write(line)
+            code = proc.wait()
+        summary.append((name, code, time.perf_counter() - t0))
+    print(f"\nlogs in {out}")
+    print(f"{'benchmark':<22}{'exit':>6}{'wall s':>10}")
+    for name, code, secs in summary:
+        print(f"{name:<22}{code:>6}{secs:>10.0f}")
+    return int(any(code != 0 for _, code, _ in summary))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
