@@ -6,6 +6,14 @@ every step (stochastic optimisation over the episode distribution). A step whose
 gradient is not finite is *skipped* (parameters and optimiser state unchanged) and reported in
 the history, never applied.
 
+Two gradients are available. ``gradient="pathwise"`` (default) differentiates the loss with
+`jax.value_and_grad`. ``gradient="smoothed"`` estimates the gradient of the Gaussian-smoothed
+loss :math:`L_\sigma(\theta) = E_{\epsilon \sim N(0, I)}[L(\theta + \sigma \epsilon)]` by
+antithetic perturbations (`smoothed_value_and_grad`), from loss values only. Use it for closed
+loops whose loss jumps with the parameters (a detection gained or lost, a gate or a stop
+switching): the pathwise derivative does not see the jumps, and through a long chaotic loop its
+tangent can grow without bound, while :math:`\nabla L_\sigma` accounts for both.
+
 Parameters are unconstrained float leaves; map them to the constrained values a model needs
 with `positive` (softplus), `exp`-style log parameters, or `cholesky_from_unconstrained` for
 covariances. The inverse maps give initial values.
@@ -22,8 +30,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.flatten_util import ravel_pytree
 
-__all__ = ["History", "fit", "positive", "positive_inverse", "cholesky_from_unconstrained",
+GRADIENTS = ("pathwise", "smoothed")
+
+__all__ = ["History", "fit", "smoothed_value_and_grad", "GRADIENTS", "positive", "positive_inverse", "cholesky_from_unconstrained",
            "unconstrained_from_cholesky", "covariance_from_unconstrained"]
 
 
@@ -47,9 +58,67 @@ class History(NamedTuple):
     val_loss: np.ndarray
 
 
+def smoothed_value_and_grad(loss_fn: Callable, params, keys: jax.Array, key: jax.Array,
+                            smoothing: float = 0.1, directions: int = 8):
+    r"""Antithetic Gaussian-smoothing estimate of the batch-mean loss and its gradient.
+
+    With the parameters flattened to :math:`\theta \in R^D`, ``K = directions`` draws
+    :math:`\epsilon_k \sim N(0, I_D)` and the ``B`` episode keys :math:`k_b` (common random
+    numbers: the same episodes at :math:`\theta \pm \sigma \epsilon_k`),
+
+    .. math::
+        \hat g = \frac{1}{K B} \sum_{k, b} \epsilon_k
+            \frac{\ell(k_b, \theta + \sigma \epsilon_k) - \ell(k_b, \theta - \sigma \epsilon_k)}
+                 {2 \sigma},
+
+    an unbiased estimate of :math:`\nabla L_\sigma(\theta)`, the gradient of the smoothed loss
+    :math:`L_\sigma(\theta) = E_\epsilon[L(\theta + \sigma \epsilon)]` (exactly
+    :math:`\nabla L` for a quadratic :math:`L`). It needs loss values only (``2 K B`` episodes,
+    all in one `vmap`), so it works where `jax.grad` cannot (loops, argmax, jumps). The value
+    returned is the mean of the ``2 K B`` losses, an estimate of :math:`L_\sigma(\theta)`.
+
+    Args:
+      loss_fn: ``loss_fn(key, params) -> scalar`` for one episode.
+      params: parameter pytree (float leaves; the smoothing is the same ``smoothing`` in every
+        unconstrained coordinate, so log-parameters are perturbed by a relative amount).
+      keys: [B] episode keys.
+      key: PRNG key of the directions.
+      smoothing: :math:`\sigma > 0`.
+      directions: :math:`K \ge 1` antithetic pairs.
+
+    Returns:
+      ``(value, grads)``: scalar and a pytree like ``params``.
+
+    Example:
+      >>> loss = lambda k, p: jnp.floor(10.0 * (p["x"] - 1.0) ** 2) / 10.0  # a staircase
+      >>> keys = jax.random.split(jax.random.PRNGKey(0), 4)
+      >>> value, g = smoothed_value_and_grad(loss, {"x": 0.0}, keys, jax.random.PRNGKey(1),
+      ...                                    smoothing=0.2, directions=256)
+    """
+    _check_smoothing(smoothing, directions)
+    flat, unravel = ravel_pytree(params)
+    if not jnp.issubdtype(flat.dtype, jnp.floating):
+        raise TypeError("params must be a pytree of float arrays")
+    eps = jax.random.normal(key, (directions, flat.size), flat.dtype)
+    thetas = jnp.concatenate([flat + smoothing * eps, flat - smoothing * eps])   # [2K, D]
+    per_theta = lambda th: jax.vmap(loss_fn, (0, None))(keys, unravel(th))  # noqa: E731
+    losses = jax.vmap(per_theta)(thetas)                                       # [2K, B]
+    diff = (losses[:directions] - losses[directions:]) / (2.0 * smoothing)     # [K, B]
+    grad = jnp.einsum("kb,kd->d", diff, eps) / (directions * losses.shape[1])
+    return jnp.mean(losses), unravel(grad.astype(flat.dtype))
+
+
+def _check_smoothing(smoothing, directions):
+    if not (isinstance(directions, int) and directions >= 1):
+        raise ValueError(f"directions must be a positive int; got {directions!r}")
+    if not (np.isfinite(smoothing) and smoothing > 0):
+        raise ValueError(f"smoothing must be a finite positive number; got {smoothing!r}")
+
+
 def fit(loss_fn: Callable, params, key, optimizer: optax.GradientTransformation | None = None,
         steps: int = 200, batch_size: int = 32, validation=None, validate_every: int = 10,
-        clip_norm: float | None = 10.0, progress: bool = True) -> tuple[Any, History]:
+        clip_norm: float | None = 10.0, progress: bool = True, gradient: str = "pathwise",
+        smoothing: float = 0.1, directions: int = 8) -> tuple[Any, History]:
     """Minimise the batch-mean of ``loss_fn`` with an optax optimiser.
 
     Args:
@@ -64,6 +133,10 @@ def fit(loss_fn: Callable, params, key, optimizer: optax.GradientTransformation 
         of keys [V]; its mean loss is recorded every ``validate_every`` steps and at the end.
       clip_norm: clip the gradient to this global norm before the optimiser (None: no clip).
       progress: print a progress line (loss, gradient norm, steps/s) to stderr.
+      gradient: ``"pathwise"`` (`jax.value_and_grad` of the batch mean) or ``"smoothed"``
+        (`smoothed_value_and_grad` with ``smoothing`` and ``directions``: ``2 * directions *
+        batch_size`` episodes per step, loss values only; the recorded loss is then the mean
+        over the perturbed episodes).
 
     Returns:
       ``(params, history)``: the final parameters and a `History`.
@@ -77,6 +150,10 @@ def fit(loss_fn: Callable, params, key, optimizer: optax.GradientTransformation 
         raise TypeError("loss_fn must be callable as loss_fn(key, params)")
     if steps < 1 or batch_size < 1:
         raise ValueError("steps and batch_size must be positive")
+    if gradient not in GRADIENTS:
+        raise ValueError(f"unknown gradient {gradient!r}; expected one of {GRADIENTS}")
+    if gradient == "smoothed":
+        _check_smoothing(smoothing, directions)
     leaves = jax.tree_util.tree_leaves(params)
     if not leaves or not all(jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) for x in leaves):
         raise TypeError("params must be a non-empty pytree of float arrays")
@@ -96,8 +173,14 @@ def fit(loss_fn: Callable, params, key, optimizer: optax.GradientTransformation 
 
     @jax.jit
     def update(p, state, i):
-        keys = jax.random.split(jax.random.fold_in(train_key, i), batch_size)
-        loss, grads = jax.value_and_grad(batch_loss)(p, keys)
+        step_key = jax.random.fold_in(train_key, i)
+        keys = jax.random.split(step_key, batch_size)
+        if gradient == "smoothed":
+            loss, grads = smoothed_value_and_grad(loss_fn, p, keys,
+                                                  jax.random.fold_in(step_key, 1),
+                                                  smoothing, directions)
+        else:
+            loss, grads = jax.value_and_grad(batch_loss)(p, keys)
         gnorm = optax.tree.norm(grads)
         ok = jnp.isfinite(loss) & jnp.isfinite(gnorm)
         updates, new_state = optimizer.update(grads, state, p)
