@@ -17,10 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["main", "run_humanoid_reach", "task_table"]
+__all__ = ["main", "run_humanoid_reach", "task_table", "TASK_NAMES"]
 
 _HEADINGS = (-90, -45, 0, 45, 90)
 _PATHS = ("P1 forward", "P2 lateral", "P3 diagonal")
+# The seed's 15 task labels, in `jaxtrack.control.pose.seed_tasks` order.
+TASK_NAMES = tuple(f"{p.split()[0]} {h:+d}" for p in _PATHS for h in _HEADINGS)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -195,17 +197,25 @@ def _bar(done, total, seconds):
 
 
 def _task_names():
-    return [f"{p.split()[0]} {h:+d}" for p in _PATHS for h in _HEADINGS]
+    return list(TASK_NAMES)
 
 
-def task_table(results, frames: int) -> str:
+def task_table(results, frames: int, names=None) -> str:
     """Section 5.5-style table: per task, tracker position error median / 95 % (pooled over
-    the frames up to the stop), heading error mean +- std, success rate, frames to stop."""
+    the frames up to the stop), heading error mean +- std, success rate, frames to stop.
+
+    ``names``: one row label per result (default: the seed's 15 task names, in order; pass the
+    names of a subset, e.g. ``[cli.TASK_NAMES[i] for i in tasks]``)."""
+    if names is None:
+        names = _task_names() + ["?"] * max(0, len(results) - len(TASK_NAMES))
+    names = list(names)
+    if len(names) != len(results):
+        raise ValueError(f"task_table got {len(results)} results and {len(names)} names")
     head = (f"{'task':<10}{'pos err med [cm]':>17}{'pos err 95% [cm]':>17}"
             f"{'heading err [deg]':>19}{'success':>9}{'frames to stop':>16}{'final err [cm]':>15}")
     lines = [head, "-" * len(head)]
     pooled = {"pos": [], "head": [], "succ": [], "frames": [], "final": []}
-    for name, m in zip(_task_names() + ["?"] * len(results), results):
+    for name, m in zip(names, results):
         active = np.asarray(m["active"], bool)
         pos = np.asarray(m["pos_err"])[active] * 100
         hd = np.asarray(m["heading_err"])[active]

@@ -28,3 +28,13 @@ def test_unknown_tracker_and_bad_counts_are_rejected(capsys):
     with pytest.raises(SystemExit):
         cli.main(["run", "humanoid-reach", "--episodes", "0"])
     assert "must be positive" in capsys.readouterr().err
+
+
+def test_table_labels_a_subset_of_tasks_by_the_names_given():
+    rng = np.random.default_rng(1)
+    names = [cli.TASK_NAMES[i] for i in (3, 11)]
+    lines = cli.task_table([_fake(rng) for _ in range(2)], 10, names=names).splitlines()
+    assert lines[2].startswith("P1 +45") and lines[3].startswith("P3 -45")
+    assert lines[5].startswith("all")
+    with pytest.raises(ValueError, match="2 results and 1 names"):
+        cli.task_table([_fake(rng) for _ in range(2)], 10, names=names[:1])
