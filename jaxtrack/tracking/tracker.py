@@ -38,6 +38,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 from jaxtrack import _checks, association
@@ -158,11 +159,14 @@ class TrackerParams(NamedTuple):
         Example:
           >>> params = TrackerParams.create(TrackerConfig(association="gnn"), r_std=(0.2,))
         """
-        if not 0 < p_detect < 1:
+        # Concrete values are checked here; traced ones (a sweep under jit / vmap) cannot be.
+        concrete = lambda x: all(map(_checks.is_concrete, jax.tree_util.tree_leaves(x)))  # noqa: E731
+        if concrete(p_detect) and not 0 < p_detect < 1:
             raise ValueError(f"p_detect must be in (0, 1); got {p_detect}")
-        if min(q, clutter_density, init_speed_std, dt, *r_std) <= 0:
+        positive = [x for x in (q, clutter_density, init_speed_std, dt, r_std) if concrete(x)]
+        if any(np.min(np.asarray(x, float)) <= 0 for x in positive):
             raise ValueError("q, r_std, clutter_density, init_speed_std and dt must be > 0")
-        if not 0 < gate_prob < 1:
+        if concrete(gate_prob) and not 0 < gate_prob < 1:
             raise ValueError(f"gate_prob must be in (0, 1); got {gate_prob}")
         f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
         return TrackerParams(

@@ -172,6 +172,26 @@ def test_bad_input_is_rejected_at_the_boundary():
                       tracking.make_detections([[0.0, 1.0]], capacity=4), p)
     with pytest.raises(ValueError, match="p_detect"):
         tracking.TrackerParams.create(p_detect=1.0)
+    with pytest.raises(ValueError, match="must be > 0"):
+        tracking.TrackerParams.create(r_std=(0.1, -0.3))
+    with pytest.raises(ValueError, match="gate_prob"):
+        tracking.TrackerParams.create(gate_prob=1.0)
+
+
+def test_params_can_be_built_from_traced_values():
+    # A sweep of noise values under vmap builds the parameters inside the trace.
+    def build(q, r, pd):
+        p = tracking.TrackerParams.create(q=q, r_std=(r, 0.3), p_detect=pd)
+        return p.log_q, p.log_r_std, p.logit_p_detect
+
+    qs, rs, pds = jnp.array([0.5, 2.0]), jnp.array([0.1, 0.2]), jnp.array([0.8, 0.9])
+    log_q, log_r, logit = jax.jit(jax.vmap(build))(qs, rs, pds)
+    for i in range(2):
+        ref = tracking.TrackerParams.create(q=float(qs[i]), r_std=(float(rs[i]), 0.3),
+                                            p_detect=float(pds[i]))
+        np.testing.assert_allclose(log_q[i], ref.log_q, rtol=1e-6)
+        np.testing.assert_allclose(log_r[i], ref.log_r_std, rtol=1e-6)
+        np.testing.assert_allclose(logit[i], ref.logit_p_detect, rtol=1e-5)
 
 
 def _two_sensor_scenario(seed=0, T=40):
