@@ -95,7 +95,6 @@ def test_births_and_deaths_happen_when_they_should():
 
 def test_slots_are_recycled_and_ids_never_repeat_over_1000_scans():
     T = 1000
-    rng = np.random.default_rng(9)
     pos = np.full((T, M, 2), np.nan)
     mask = np.zeros((T, M), bool)
     # a new person every 3 scans, walking 1.6 s then vanishing: with the scans a lost track
