@@ -34,8 +34,9 @@ from jax.flatten_util import ravel_pytree
 
 GRADIENTS = ("pathwise", "smoothed")
 
-__all__ = ["History", "fit", "smoothed_value_and_grad", "GRADIENTS", "positive", "positive_inverse", "cholesky_from_unconstrained",
-           "unconstrained_from_cholesky", "covariance_from_unconstrained"]
+__all__ = ["History", "fit", "smoothed_value_and_grad", "GRADIENTS", "positive",
+           "positive_inverse", "cholesky_from_unconstrained", "unconstrained_from_cholesky",
+           "covariance_from_unconstrained"]
 
 
 class History(NamedTuple):
