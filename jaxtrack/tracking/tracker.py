@@ -160,7 +160,9 @@ class TrackerParams(NamedTuple):
           >>> params = TrackerParams.create(TrackerConfig(association="gnn"), r_std=(0.2,))
         """
         # Concrete values are checked here; traced ones (a sweep under jit / vmap) cannot be.
-        concrete = lambda x: all(map(_checks.is_concrete, jax.tree_util.tree_leaves(x)))  # noqa: E731
+        def concrete(x):
+            return all(map(_checks.is_concrete, jax.tree_util.tree_leaves(x)))
+
         if concrete(p_detect) and not 0 < p_detect < 1:
             raise ValueError(f"p_detect must be in (0, 1); got {p_detect}")
         positive = [x for x in (q, clutter_density, init_speed_std, dt, r_std) if concrete(x)]
