@@ -204,10 +204,11 @@ def task_table(results, frames: int, names=None) -> str:
     """Section 5.5-style table: per task, tracker position error median / 95 % (pooled over
     the frames up to the stop), heading error mean +- std, success rate, frames to stop.
 
-    ``names``: one row label per result (default: the seed's 15 task names, in order; pass the
-    names of a subset, e.g. ``[cli.TASK_NAMES[i] for i in tasks]``)."""
+    ``names``: one row label per result (default: the seed's task names in order, i.e. results
+    for tasks 0, 1, ...; for another subset pass its names, e.g.
+    ``[cli.TASK_NAMES[i] for i in tasks]``)."""
     if names is None:
-        names = _task_names() + ["?"] * max(0, len(results) - len(TASK_NAMES))
+        names = (_task_names() + ["?"] * len(results))[:len(results)]
     names = list(names)
     if len(names) != len(results):
         raise ValueError(f"task_table got {len(results)} results and {len(names)} names")

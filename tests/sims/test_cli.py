@@ -36,5 +36,8 @@ def test_table_labels_a_subset_of_tasks_by_the_names_given():
     lines = cli.task_table([_fake(rng) for _ in range(2)], 10, names=names).splitlines()
     assert lines[2].startswith("P1 +45") and lines[3].startswith("P3 -45")
     assert lines[5].startswith("all")
+    # Without names, results are tasks 0, 1, ... in order.
+    lines = cli.task_table([_fake(rng) for _ in range(2)], 10).splitlines()
+    assert lines[2].startswith("P1 -90") and lines[3].startswith("P1 -45")
     with pytest.raises(ValueError, match="2 results and 1 names"):
         cli.task_table([_fake(rng) for _ in range(2)], 10, names=names[:1])
