@@ -6,6 +6,10 @@ Usage:
   python benchmarks/run_all.py --only particle,filters
   python benchmarks/run_all.py --gradcheck      # also the closed-loop gradient checks
 
+With ``--quick``, the gradient checks run at toy sizes (2 episodes): that exercises their code,
+but their pass / fail verdict at that size is noise (the finite differences of 2 short
+episodes), so a quick run does not count them as failures.
+
 Each script's output goes to ``benchmarks/results/<UTC date>/<name>.log`` (and to the terminal);
 a summary of exit codes and wall times ends the run. The exit code is non-zero when any
 benchmark failed. Run from the benchmark environment (see README.md, "Running").
@@ -85,7 +89,10 @@ def main(argv=None) -> int:
     print(f"{'benchmark':<22}{'exit':>6}{'wall s':>10}")
     for name, code, secs in summary:
         print(f"{name:<22}{code:>6}{secs:>10.0f}")
-    return int(any(code != 0 for _, code, _ in summary))
+    counted = [code for name, code, _ in summary if not (args.quick and name in GRADCHECKS)]
+    if args.quick and any(name in GRADCHECKS for name, _, _ in summary):
+        print("(--quick: the gradient checks' verdicts are not counted; see the docstring)")
+    return int(any(code != 0 for code in counted))
 
 
 if __name__ == "__main__":
