@@ -196,10 +196,6 @@ def _bar(done, total, seconds):
           end=end, file=sys.stderr, flush=True)
 
 
-def _task_names():
-    return list(TASK_NAMES)
-
-
 def task_table(results, frames: int, names=None) -> str:
     """Section 5.5-style table: per task, tracker position error median / 95 % (pooled over
     the frames up to the stop), heading error mean +- std, success rate, frames to stop.
@@ -208,7 +204,7 @@ def task_table(results, frames: int, names=None) -> str:
     for tasks 0, 1, ...; for another subset pass its names, e.g.
     ``[cli.TASK_NAMES[i] for i in tasks]``)."""
     if names is None:
-        names = (_task_names() + ["?"] * len(results))[:len(results)]
+        names = (list(TASK_NAMES) + ["?"] * len(results))[:len(results)]
     names = list(names)
     if len(names) != len(results):
         raise ValueError(f"task_table got {len(results)} results and {len(names)} names")
@@ -243,7 +239,7 @@ def _write_outputs(out: Path, results, tracker):
     from jaxtrack import plotting
 
     out.mkdir(parents=True, exist_ok=True)
-    names = _task_names()
+    names = list(TASK_NAMES)
     # Figs. 10-11 style: per-frame tracker errors per task.
     pos = {n: np.asarray(m["pos_err"])[np.asarray(m["active"], bool)]
            for n, m in zip(names, results)}
