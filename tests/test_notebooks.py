@@ -44,7 +44,7 @@ def test_notebook_executes_at_reduced_size(path, monkeypatch):
     monkeypatch.setenv("JAXTRACK_NOTEBOOK_SMALL", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     monkeypatch.setenv("XLA_FLAGS", os.environ.get(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"))
+        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false"))
     nb = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
                                      resources={"metadata": {"path": str(path.parent)}})
