@@ -11,6 +11,7 @@ a tracks file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -45,6 +46,15 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--frames", type=int, default=200)
     reach.add_argument("--resolution", type=int, nargs=2, default=(80, 60),
                        metavar=("WIDTH", "HEIGHT"))
+    reach.add_argument("--lambda-x", type=float, default=0.1,
+                       help="controller position gain (1/s)")
+    reach.add_argument("--lambda-theta", type=float, default=0.2,
+                       help="controller heading gain (1/s)")
+    reach.add_argument("--position-noise", type=float, default=0.035,
+                       help="tracker propagation std per frame (m)")
+    reach.add_argument("--temperature", type=float, default=None,
+                       help="tempered likelihood weight exp(n / T) (pf, pf3); default: the "
+                            "seed's weight log(n + 1)")
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
@@ -141,15 +151,28 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.episodes < 1 or args.particles < 1 or args.frames < 1:
         parser.error("--episodes, --particles and --frames must be positive")
+    for flag, value in (("--lambda-x", args.lambda_x), ("--lambda-theta", args.lambda_theta),
+                        ("--position-noise", args.position_noise),
+                        ("--temperature", args.temperature)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            parser.error(f"{flag} must be a finite positive number; got {value}")
     run_humanoid_reach(args.episodes, args.tracker, args.out, args.seed, args.particles,
-                       args.frames, tuple(args.resolution))
+                       args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
+                       lambda_theta=args.lambda_theta, position_noise=args.position_noise,
+                       temperature=args.temperature)
     return 0
 
 
 def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None = None,
                        seed: int = 0, particles: int = 128, frames: int = 200,
-                       resolution=(80, 60), stream=sys.stdout) -> dict:
+                       resolution=(80, 60), stream=sys.stdout, lambda_x: float = 0.1,
+                       lambda_theta: float = 0.2, position_noise: float = 0.035,
+                       temperature: float | None = None) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
+
+    ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
+    values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
+    ``notebooks/02_humanoid_tuning.ipynb``.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.
@@ -163,7 +186,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     cfg = episode.EpisodeConfig(sc, tracker=tracker, num_particles=particles,
                                 num_frames=frames)
     episode_fn = episode.make_episode(cfg)
-    tasks = episode.seed_task_params()
+    tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
+                                     position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
     total = episodes * len(tasks)
     t0 = time.perf_counter()

@@ -85,12 +85,17 @@ class EpisodeParams(NamedTuple):
       target: [3] target pose.
       gains: `control.PoseGains` (log lambda_x, log lambda_theta).
       log_position_noise: log std (m) of the tracker's random-walk propagation per frame.
+      log_temperature: None (default) to use ``EpisodeConfig.temperature``, or log T of the
+        tempered likelihood weight exp(n / T) of the pf and pf3 trackers, overriding the
+        configuration: a traced value, so the likelihood's sharpness can be swept or tuned
+        by gradient without recompiling.
     """
 
     start: Array
     target: Array
     gains: control.PoseGains
     log_position_noise: Array
+    log_temperature: Array | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -129,6 +134,7 @@ class EpisodeConfig:
         torso: 2.1 cm on average on the seed tasks, 2.3-2.9 cm at 0.7 m from the optical
         axis); T = 3 sharpens it toward the count's mode: position error median / 95 %
         2.63 / 5.38 -> 1.39 / 2.41 cm on 480 pf episodes, success unchanged (94.8 -> 94.2 %).
+        A per-episode ``EpisodeParams.log_temperature`` overrides it (traced).
       dtype: float dtype of the simulation.
     """
 
@@ -158,7 +164,7 @@ class EpisodeConfig:
 
 
 def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
-                position_noise=0.035, dtype=jnp.float32) -> EpisodeParams:
+                position_noise=0.035, temperature=None, dtype=jnp.float32) -> EpisodeParams:
     """`EpisodeParams` from plain values, checked at the boundary.
 
     Args:
@@ -167,6 +173,8 @@ def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
       position_noise: tracker propagation std (m, > 0); 0.035 follows the CoM sway (up to
         7 cm between two 4 Hz frames): 0.02 gave 3.4 / 8.1 cm median / 95 % errors, 0.035
         2.6 / 5.1 cm, 0.05 2.5 / 4.5 cm on 128 episodes of four seed tasks.
+      temperature: None to keep ``EpisodeConfig.temperature`` (by default the seed's weight), or
+        T > 0 for the tempered weight exp(n / T), stored as the traced ``log_temperature``.
 
     Example:
       >>> params = make_params([1.0, 0.0, -math.pi / 2])
@@ -180,13 +188,15 @@ def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
         if not np.all(np.isfinite(value)):
             raise ValueError(f"{name} must be finite; got {value.tolist()}")
     for name, value in (("lambda_x", lambda_x), ("lambda_theta", lambda_theta),
-                        ("position_noise", position_noise)):
+                        ("position_noise", position_noise)) + (
+                            (("temperature", temperature),) if temperature is not None else ()):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite positive number; got {value}")
+    log_t = None if temperature is None else jnp.asarray(math.log(temperature), dtype)
     return EpisodeParams(jnp.asarray(start, dtype), jnp.asarray(target, dtype),
                          control.PoseGains(jnp.asarray(math.log(lambda_x), dtype),
                                            jnp.asarray(math.log(lambda_theta), dtype)),
-                         jnp.asarray(math.log(position_noise), dtype))
+                         jnp.asarray(math.log(position_noise), dtype), log_t)
 
 
 def seed_task_params(dtype=jnp.float32, **kwargs) -> list[EpisodeParams]:
@@ -316,6 +326,14 @@ def make_episode(config: EpisodeConfig):
     return episode
 
 
+def _temperature(config: EpisodeConfig, params: EpisodeParams):
+    """The likelihood temperature: the traced ``params.log_temperature`` if given, else the
+    configuration's (None: the seed's weight)."""
+    if params.log_temperature is None:
+        return config.temperature
+    return jnp.exp(params.log_temperature).astype(config.dtype)
+
+
 def _pose_mean(poses):
     """Mean of poses [K, 3]: positions averaged, headings on the circle about the latest."""
     latest = poses[-1, 2]
@@ -375,7 +393,7 @@ def _tracker(config: EpisodeConfig):
                 key, state.particles, frame,
                 lambda k, x: x + sigma * jax.random.normal(k, x.shape, x.dtype),
                 lambda z, x: depth.log_likelihood(z, x, model, softness=softness,
-                                                 temperature=config.temperature),
+                                                 temperature=_temperature(config, params)),
                 resampler, vectorized=True)
             position = particle.weighted_mean(ps)
             heading = heading_from_pca(points, mask, position, state.heading)
@@ -406,7 +424,7 @@ def _tracker(config: EpisodeConfig):
             ps, _ = particle.step(
                 key, state.particles, frame, transition,
                 lambda z, x: depth.log_likelihood(z, x, model, softness=softness,
-                                                 temperature=config.temperature),
+                                                 temperature=_temperature(config, params)),
                 resampler, vectorized=True)
             # The likelihood cannot tell theta from theta + pi: fold the heading particles to
             # the half-circle of the previous estimate (weights unchanged) so that they never

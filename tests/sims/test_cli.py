@@ -30,6 +30,21 @@ def test_unknown_tracker_and_bad_counts_are_rejected(capsys):
     assert "must be positive" in capsys.readouterr().err
 
 
+def test_humanoid_tunable_values_reach_the_run_and_bad_ones_are_rejected(capsys, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(cli, "run_humanoid_reach", lambda *a, **kw: seen.update(kw))
+    assert cli.main(["run", "humanoid-reach", "--lambda-x", "0.4", "--lambda-theta", "0.9",
+                     "--position-noise", "0.041", "--temperature", "1.1"]) == 0
+    assert seen == {"lambda_x": 0.4, "lambda_theta": 0.9, "position_noise": 0.041,
+                    "temperature": 1.1}
+    assert cli.main(["run", "humanoid-reach"]) == 0
+    assert seen["temperature"] is None and seen["lambda_x"] == 0.1
+    for flag in ("--lambda-x", "--temperature"):
+        with pytest.raises(SystemExit):
+            cli.main(["run", "humanoid-reach", flag, "-1"])
+        assert f"{flag} must be a finite positive number" in capsys.readouterr().err
+
+
 def test_table_labels_a_subset_of_tasks_by_the_names_given():
     rng = np.random.default_rng(1)
     names = [cli.TASK_NAMES[i] for i in (3, 11)]

@@ -53,6 +53,28 @@ def test_pf3_heading_follows_a_quarter_turn(sc):
     assert np.mean(m["heading_err"]) < 8
 
 
+def test_traced_temperature_equals_the_configured_one_and_matters(sc):
+    """params.log_temperature overrides EpisodeConfig.temperature as a traced value: one
+    compiled episode reproduces the configured T = 3 run and differs at T = 30."""
+    base = dict(num_particles=16, num_frames=5, max_points=32)
+    key = jax.random.PRNGKey(3)
+    target = [0.4, 0.1, 0.3]
+    configured = jax.jit(episode.make_episode(episode.EpisodeConfig(sc, temperature=3.0,
+                                                                    **base)))
+    traced = jax.jit(episode.make_episode(episode.EpisodeConfig(sc, **base)))
+    ref = configured(key, episode.make_params(target))
+    params = episode.make_params(target, temperature=3.0)
+    assert params.log_temperature.dtype == jnp.float32
+    np.testing.assert_allclose(np.log(3.0), params.log_temperature, rtol=1e-6)
+    got = traced(key, params)
+    np.testing.assert_allclose(got["estimate"], ref["estimate"], atol=1e-5)
+    other = traced(key, params._replace(log_temperature=jnp.log(jnp.float32(30.0))))
+    assert np.max(np.abs(other["estimate"] - ref["estimate"])) > 1e-3
+    # The tasks' default leaves it to the configuration.
+    assert episode.seed_task_params()[0].log_temperature is None
+    assert episode.seed_task_params(temperature=2.0)[5].log_temperature is not None
+
+
 def test_bad_task_input_is_rejected_with_a_clear_message(sc):
     with pytest.raises(ValueError, match="target must be finite"):
         episode.make_params([np.nan, 0.0, 0.0])
@@ -60,6 +82,8 @@ def test_bad_task_input_is_rejected_with_a_clear_message(sc):
         episode.make_params([1.0, 0.0])
     with pytest.raises(ValueError, match="lambda_x"):
         episode.make_params([1.0, 0.0, 0.0], lambda_x=-1.0)
+    with pytest.raises(ValueError, match="temperature must be a finite positive number"):
+        episode.make_params([1.0, 0.0, 0.0], temperature=0.0)
     with pytest.raises(ValueError, match="unknown tracker 'kcf'"):
         episode.make_episode(episode.EpisodeConfig(sc, tracker="kcf"))
     with pytest.raises(ValueError, match="sway_frames"):
