@@ -116,6 +116,13 @@ class EpisodeConfig:
       max_points: point-cloud capacity after floor removal.
       heading_noise: heading random-walk std per frame of "pf3" (rad).
       pca_radius, heading_window, heading_gain: PCA heading (`depth.pca_heading`).
+      turn_prediction: "pf" and "ukf" trackers: predict the heading with the commanded turn,
+        theta_{t-1} + omega * frame_dt, before the PCA update (the seed has no prediction:
+        False). The smoothed PCA heading otherwise lags a turning robot, and lowering
+        ``heading_gain`` to cut its noise lengthens the lag. Mean heading error over 15 tasks
+        x 16 episodes: default gains 3.56 deg without, 3.48 with (gain 0.5), 3.44 / 2.99
+        (gain 0.3); gains lambda_x 0.41, lambda_theta 0.93: 3.97 / 3.40 (gain 0.5), 6.06 /
+        2.91 (gain 0.3).
       init_spread: std (m) of the initial particle cloud around the given start.
       sway_frames: frames of the step-cycle average used by the stop rule and the success
         criterion (module notes); None: three step cycles,
@@ -153,6 +160,7 @@ class EpisodeConfig:
     pca_radius: float = 0.25
     heading_window: float = math.radians(20.0)
     heading_gain: float = 0.5
+    turn_prediction: bool = False
     init_spread: float = 0.02
     sway_frames: int | None = None
     smooth: bool = False
@@ -376,7 +384,9 @@ def _tracker(config: EpisodeConfig):
                          f"'stop_gradient' or 'ot'")
     softness = config.softness if config.smooth else None
 
-    def heading_from_pca(points, mask, centre, prev):
+    def heading_from_pca(points, mask, centre, prev, turn):
+        if config.turn_prediction:
+            prev = wrap(prev + turn * config.frame_dt)
         return depth.pca_heading(points, mask, centre, config.pca_radius, prev,
                                  config.heading_window, config.heading_gain).heading
 
@@ -396,7 +406,7 @@ def _tracker(config: EpisodeConfig):
                                                  temperature=_temperature(config, params)),
                 resampler, vectorized=True)
             position = particle.weighted_mean(ps)
-            heading = heading_from_pca(points, mask, position, state.heading)
+            heading = heading_from_pca(points, mask, position, state.heading, turn)
             return _PFState(ps, heading), jnp.concatenate([position, heading[None]])
 
         return init, step
@@ -457,7 +467,7 @@ def _tracker(config: EpisodeConfig):
         centroid = (w @ points[:, :2]) / jnp.maximum(count, 1.0)
         r = jnp.eye(2, dtype=dtype) * 0.015 ** 2
         post, _ = ukf.update(pred, centroid, lambda x: x[:2], r, mask=count >= 3)
-        heading = heading_from_pca(points, mask, post.mean[:2], state.heading)
+        heading = heading_from_pca(points, mask, post.mean[:2], state.heading, turn)
         return (_UKFState(post, heading), jnp.concatenate([post.mean[:2], heading[None]]))
 
     return init, step

@@ -53,6 +53,23 @@ def test_pf3_heading_follows_a_quarter_turn(sc):
     assert np.mean(m["heading_err"]) < 8
 
 
+def test_turn_prediction_removes_the_pca_heading_lag_on_a_turn(sc):
+    """pf on a quarter turn at lambda_theta 0.9: the smoothed PCA heading lags the turn unless
+    the commanded turn predicts it."""
+    errs = []
+    for turn_prediction in (False, True):
+        cfg = episode.EpisodeConfig(sc, num_particles=32, num_frames=24, max_points=32,
+                                    turn_prediction=turn_prediction)
+        run = jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
+        m = run(jax.random.split(jax.random.PRNGKey(0), 4),
+                episode.make_params([0.2, 0.0, np.pi / 2], lambda_theta=0.9))
+        assert np.all(np.rad2deg(m["truth"][:, -1, 2]) > 80)      # it did turn
+        errs.append(np.mean(m["heading_err"], axis=1))
+    lagging, predicted = errs
+    assert np.all(predicted < lagging)
+    assert np.mean(predicted) < 0.7 * np.mean(lagging)
+
+
 def test_traced_temperature_equals_the_configured_one_and_matters(sc):
     """params.log_temperature overrides EpisodeConfig.temperature as a traced value: one
     compiled episode reproduces the configured T = 3 run and differs at T = 30."""
