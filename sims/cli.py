@@ -55,6 +55,10 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--temperature", type=float, default=None,
                        help="tempered likelihood weight exp(n / T) (pf, pf3); default: the "
                             "seed's weight log(n + 1)")
+    reach.add_argument("--turn-prediction", action="store_true",
+                       help="predict the PCA heading with the commanded turn (pf, ukf)")
+    reach.add_argument("--heading-gain", type=float, default=0.5,
+                       help="smoothing gain of the PCA heading, in (0, 1]")
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
@@ -156,10 +160,13 @@ def main(argv: list[str] | None = None) -> int:
                         ("--temperature", args.temperature)):
         if value is not None and not (math.isfinite(value) and value > 0):
             parser.error(f"{flag} must be a finite positive number; got {value}")
+    if not 0 < args.heading_gain <= 1:
+        parser.error(f"--heading-gain must be in (0, 1]; got {args.heading_gain}")
     run_humanoid_reach(args.episodes, args.tracker, args.out, args.seed, args.particles,
                        args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
-                       temperature=args.temperature)
+                       temperature=args.temperature, turn_prediction=args.turn_prediction,
+                       heading_gain=args.heading_gain)
     return 0
 
 
@@ -167,12 +174,14 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        seed: int = 0, particles: int = 128, frames: int = 200,
                        resolution=(80, 60), stream=sys.stdout, lambda_x: float = 0.1,
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
-                       temperature: float | None = None) -> dict:
+                       temperature: float | None = None, turn_prediction: bool = False,
+                       heading_gain: float = 0.5) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
     values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
-    ``notebooks/02_humanoid_tuning.ipynb``.
+    ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
+    the PCA heading (`sims.humanoid.episode.EpisodeConfig`).
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.
@@ -184,7 +193,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
 
     sc = scene.build(*resolution)
     cfg = episode.EpisodeConfig(sc, tracker=tracker, num_particles=particles,
-                                num_frames=frames)
+                                num_frames=frames, turn_prediction=turn_prediction,
+                                heading_gain=heading_gain)
     episode_fn = episode.make_episode(cfg)
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
