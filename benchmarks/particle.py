@@ -395,6 +395,28 @@ JAX_IMPLS = [("jaxtrack", jaxtrack_pf), ("jaxtrack (no covs)", jaxtrack_no_covs_
              ("cuthbert", cuthbert_pf), ("cuthbert*", cuthbert_no_callback_pf)]
 
 
+def user_functions_only(p, dtype=jnp.float32):
+    """Not a filter: the user's transition and log-likelihood alone, scanned over the steps
+    (no resampling, normalisation or moments). What any filter built on these user functions
+    costs at least."""
+    F, LQ = jnp.asarray(p["F"], dtype), jnp.asarray(p["LQ"], dtype)
+    loglik_fn = gaussian_loglik_fn(p["R"], dtype)
+
+    def run(key, x0, zs):
+        def body(x, inp):
+            k, z = inp
+            x = x @ F.T + jax.random.normal(k, x.shape, x.dtype) @ LQ.T
+            return x, jnp.sum(loglik_fn(z, x))
+
+        _, lls = jax.lax.scan(body, x0, (jax.random.split(key, zs.shape[0]), zs))
+        return lls
+
+    return run, None
+
+
+FLOOR = ("user functions only", user_functions_only)
+
+
 def jax_call(factory, p, episodes, key):
     """(jitted fn, args) for one JAX implementation."""
     run, _ = factory(p)
@@ -411,7 +433,7 @@ def run_case(p, episodes, args, rows, skip):
     print(f"\n[N={episodes}, T={args.steps}, {args.particles} particles] ...", flush=True)
     calls, meta, compiled = {}, {}, []
     key = jax.random.key(1, impl=args.prng)
-    for name, factory in JAX_IMPLS:
+    for name, factory in JAX_IMPLS + [FLOOR]:
         if name in skip:
             continue
         calls[name] = jax_call(factory, p, episodes, key)
@@ -423,6 +445,8 @@ def run_case(p, episodes, args, rows, skip):
             note += "; resampling_fn without the callback"
         if name == "jaxtrack (no covs)":
             note += "; return_covs=False"
+        if name == FLOOR[0]:
+            note += "; transition + likelihood, no filter: the floor"
         if args.prng != "threefry2x32":
             note += f"; {args.prng} keys"
         meta[name] = (episodes, args.steps, note)
@@ -575,8 +599,8 @@ def parse_args(argv=None):
                          "libraries 5x as many, Stone Soup half)")
     ap.add_argument("--skip", default="",
                     help="comma-separated libraries to leave out (jaxtrack, 'jaxtrack (no "
-                         "covs)', 'jax (hand-written)', cuthbert, cuthbert*, particles, "
-                         "filterpy, stonesoup)")
+                         "covs)', 'jax (hand-written)', 'user functions only', cuthbert, "
+                         "cuthbert*, particles, filterpy, stonesoup)")
     ap.add_argument("--prng", default="threefry2x32",
                     choices=["threefry2x32", "rbg", "unsafe_rbg"],
                     help="jax.random key implementation of every JAX library (default "
