@@ -195,9 +195,11 @@ def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
                              f"{list(value.shape)}")
         if not np.all(np.isfinite(value)):
             raise ValueError(f"{name} must be finite; got {value.tolist()}")
-    for name, value in (("lambda_x", lambda_x), ("lambda_theta", lambda_theta),
-                        ("position_noise", position_noise)) + (
-                            (("temperature", temperature),) if temperature is not None else ()):
+    positive = [("lambda_x", lambda_x), ("lambda_theta", lambda_theta),
+                ("position_noise", position_noise)]
+    if temperature is not None:
+        positive.append(("temperature", temperature))
+    for name, value in positive:
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite positive number; got {value}")
     log_t = None if temperature is None else jnp.asarray(math.log(temperature), dtype)
