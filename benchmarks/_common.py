@@ -1,19 +1,32 @@
-"""Shared helpers for the benchmark scripts: single-core setup, timing, machine info, tables.
+"""The scaffold every benchmark script stands on.
 
-Call `single_core_env()` before anything imports jax (the XLA flags are read once, when the
-CPU backend starts). Nothing here imports jax at module level for that reason.
+- `parser`: the shared options (``--quick``, ``--seed``, ``--out``; ``--repeats`` for timed
+  comparisons, ``--cpu`` / ``--no-pin`` for single-core runs) and sizes that ``--quick`` shrinks.
+- `single_core_from_argv`: one pinned core, set before jax starts.
+- `time_interleaved` / `time_call`: median wall and CPU time over clean, interleaved repeats.
+- `header`: the lines that open a report (date, machine, versions, git describe, load).
+- `Row`, `timing_row`, `table`: one line per contender, its ratio to a reference row.
+- `report` / `tee`: the report to the terminal and to ``--out``.
+
+Call `single_core_env()` (or `single_core_from_argv()`) before anything imports jax (the XLA
+flags are read once, when the CPU backend starts). Nothing here imports jax at module level for
+that reason.
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import dataclasses
 import datetime
 import importlib.metadata
 import os
 import platform
 import statistics
+import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 
 SINGLE_CORE_ENV = {
     # One Eigen thread for XLA:CPU; the BLAS libraries numpy / scipy link against (used by
@@ -30,10 +43,10 @@ SINGLE_CORE_ENV = {
 }
 
 
-def single_core_env(pin: bool = True) -> dict[str, str]:
+def single_core_env(pin: bool = True, cpu: int | None = None) -> dict[str, str]:
     """Run on one core: thread-count environment variables (``os.environ.setdefault``: an
     explicit environment wins) and, with ``pin``, the process's CPU affinity restricted to one
-    core (the last one it may use), which is what ``taskset -c`` does.
+    core (``cpu``, by default the last one it may use), which is what ``taskset -c`` does.
 
     The affinity is needed because XLA:CPU's runtime executes independent operations of a
     program concurrently on its intra-op thread pool (one thread per core), whatever XLA_FLAGS
@@ -45,11 +58,44 @@ def single_core_env(pin: bool = True) -> dict[str, str]:
         os.environ.setdefault(key, value)
     settings = {key: os.environ[key] for key in SINGLE_CORE_ENV}
     if pin and hasattr(os, "sched_setaffinity"):
-        cpu = max(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
+        os.sched_setaffinity(0, {max(os.sched_getaffinity(0)) if cpu is None else cpu})
     if hasattr(os, "sched_getaffinity"):
-        settings["affinity"] = ",".join(str(c) for c in sorted(os.sched_getaffinity(0)))
+        settings["affinity"] = affinity()
     return settings
+
+
+def single_core_from_argv(argv: Sequence[str] | None = None) -> dict[str, str]:
+    """`single_core_env` as ``--no-pin`` / ``--cpu N`` in ``argv`` (default ``sys.argv``) ask.
+
+    Reads the two options itself because the affinity must be set before jax is imported,
+    which is before the script's parser runs (`parser` declares them for ``--help``).
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    cpu = None
+    for i, a in enumerate(argv):
+        if a == "--cpu" and i + 1 < len(argv):
+            cpu = int(argv[i + 1])
+        elif a.startswith("--cpu="):
+            cpu = int(a.split("=", 1)[1])
+    return single_core_env(pin="--no-pin" not in argv, cpu=cpu)
+
+
+def affinity() -> str:
+    """The CPUs this process may run on, e.g. "0,1"."""
+    if not hasattr(os, "sched_getaffinity"):
+        return "unknown"
+    return ",".join(str(c) for c in sorted(os.sched_getaffinity(0)))
+
+
+def setup_jax() -> None:
+    """Compile every timed function afresh (a warm persistent cache would hide compile time, a
+    reported column) and keep the peers' deprecation warnings out of the report."""
+    import warnings
+
+    import jax
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
 
 
 def block(out):
@@ -251,3 +297,233 @@ def git_describe(path: str | None = None) -> str:
                               capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+
+
+# ---------------------------------------------------------------------------------------------
+# Options
+
+
+class Parser(argparse.ArgumentParser):
+    """An `argparse.ArgumentParser` whose `sized` options take their default from ``--quick``
+    (and ``--gradcheck``, where the script has it) when not given."""
+
+    def __init__(self, *args, timing: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._sizes: dict[str, tuple[tuple, tuple | None]] = {}
+        self._timing = timing
+
+    def sized(self, flag: str, full, quick, help: str, *, type=int,
+              gradcheck: tuple | None = None) -> None:
+        """``flag`` defaults to ``full``, or ``quick`` under ``--quick``; with ``gradcheck``
+        (a (full, quick) pair), to those under ``--gradcheck``."""
+        text = f"{help} (default {full}; --quick {quick}"
+        if gradcheck is not None:
+            text += f"; with --gradcheck {gradcheck[0]}, --quick {gradcheck[1]}"
+        action = self.add_argument(flag, type=type, default=None, help=text + ")")
+        self._sizes[action.dest] = ((full, quick), gradcheck)
+
+    def parse_args(self, args=None, namespace=None):
+        ns = super().parse_args(args, namespace)
+        for dest, (sizes, grad) in self._sizes.items():
+            if getattr(ns, dest) is None:
+                full, quick = grad if grad is not None and getattr(ns, "gradcheck", False) \
+                    else sizes
+                setattr(ns, dest, quick if ns.quick else full)
+        if self._timing:
+            # Short repeats at smoke sizes, where the calls are short too.
+            ns.min_repeat_s = 0.02 if ns.quick else 0.2
+        return ns
+
+
+def parser(description: str, *, timing: bool = False, single_core: bool = False,
+           agreement: bool = False, gradcheck: str | None = None,
+           out_help: str = "also write the report to this file (e.g. under "
+                           "benchmarks/results/raw/, which git ignores)") -> Parser:
+    """The benchmark's argument parser, with the options every script shares.
+
+    ``description``: the script's docstring (its first paragraph is shown). Every parser has
+    ``--quick`` (smoke sizes), ``--seed`` (offset of the data and key seeds; 0 gives the logged
+    runs) and ``--out``. ``timing``: ``--repeats`` and ``args.min_repeat_s`` for
+    `time_interleaved`. ``single_core``: ``--cpu`` / ``--no-pin`` (read by
+    `single_core_from_argv` before jax starts). ``agreement``: ``--no-check``, to skip the
+    agreement check. ``gradcheck``: a ``--gradcheck`` flag with this help.
+    """
+    p = Parser(description=description.strip().split("\n\n")[0], timing=timing)
+    p.add_argument("--quick", action="store_true", help="smoke-test sizes")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed offset of the simulated data and keys (default 0)")
+    p.add_argument("--out", type=Path, default=None, help=out_help)
+    if timing:
+        p.sized("--repeats", 7, 3, "timing repeats, interleaved over the contenders")
+    if single_core:
+        p.add_argument("--cpu", type=int, default=None,
+                       help="pin to this CPU (read before jax starts; default: the last one)")
+        p.add_argument("--no-pin", action="store_true",
+                       help="do not restrict the process to one CPU (read before jax starts)")
+    if agreement:
+        p.add_argument("--no-check", action="store_true", help="skip the agreement check")
+    if gradcheck is not None:
+        p.add_argument("--gradcheck", action="store_true", help=gradcheck)
+    return p
+
+
+class _Tee:
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, text):
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self):
+        for stream in self.streams:
+            stream.flush()
+
+
+def report(run: Callable, args: argparse.Namespace):
+    """``run(args)``, what it prints also written to ``args.out`` (when given)."""
+    with tee(args.out):
+        return run(args)
+
+
+@contextlib.contextmanager
+def tee(path: Path | str | None) -> Iterator[None]:
+    """Print to the terminal and, with ``path``, to that file as well."""
+    if path is None:
+        yield
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    terminal = sys.stdout
+    with open(path, "w") as f:
+        sys.stdout = _Tee(terminal, f)
+        try:
+            yield
+        finally:
+            sys.stdout = terminal
+
+
+# ---------------------------------------------------------------------------------------------
+# Reports
+
+
+def header(packages: Sequence[str], *lines: str, threads: dict[str, str] | None = None
+           ) -> list[str]:
+    """The lines that open a report: date, machine, python and package versions, jaxtrack's git
+    describe and the jax backend, the thread settings (``threads``, from `single_core_env`;
+    default: the CPU affinity) and the load average at the start, then ``lines``."""
+    import jax
+
+    import jaxtrack
+
+    threads = threads or {"affinity": affinity()}
+    return [*machine_info(packages),
+            f"jaxtrack git {git_describe(jaxtrack.__file__)}; jax backend "
+            f"{jax.default_backend()}, devices {jax.devices()}",
+            "threads: " + ", ".join(f"{k}={v!r}" for k, v in threads.items()),
+            load_line("start"), *lines]
+
+
+def load_line(when: str) -> str:
+    return f"load average at {when} (1, 5, 15 min): {load_average()}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """A line of a results table.
+
+    ``label``: the leading columns, what ran (case, contender, sizes). ``figures``: column ->
+    value, in order; the first is the headline that ratios compare. ``ratio``: the headline
+    over a reference row's (`vs`). ``note``: the last column.
+    """
+
+    label: tuple
+    figures: dict[str, object]
+    ratio: float | None = None
+    note: str = ""
+
+    @property
+    def headline(self) -> float:
+        return next(iter(self.figures.values()))
+
+    def vs(self, reference: Row) -> Row:
+        """This row with its ratio to ``reference``."""
+        return dataclasses.replace(self, ratio=self.headline / reference.headline)
+
+
+def timing_row(label: tuple, timing: Timing, episodes: int, steps: int = 1, *, unit: str,
+               note: str = "") -> Row:
+    """A `Row` of the timing figures per ``unit`` of work, one call covering ``episodes x
+    steps`` units: wall and CPU microseconds, the first call's extra seconds, clean repeats,
+    spread."""
+    return Row(label, {f"us/{unit}": timing.per_step_us(episodes, steps),
+                       "first call s": timing.first_call,
+                       f"cpu us/{unit}": timing.cpu_per_step_us(episodes, steps),
+                       "clean": f"{timing.clean}/{timing.repeats}",
+                       "spread": f"{100 * timing.spread:.0f}%"}, note=note)
+
+
+def progress(name: str, row: Row, timing: Timing) -> None:
+    """One line on a contender as soon as it is timed (the table comes at the end)."""
+    unit = next(iter(row.figures))
+    print(f"  {name:<24} {fmt_float(row.headline):>9} {unit}  ({timing.number} calls x "
+          f"{timing.repeats} repeats, {timing.clean} clean, spread "
+          f"{100 * timing.spread:.0f}%)", flush=True)
+
+
+def table(columns: Sequence[str], rows: Sequence[Row], ratio: str | None = "vs jaxtrack"
+          ) -> str:
+    """``rows`` as a fixed-width table: the label columns (named by ``columns``), the figures,
+    with the ratio column (named ``ratio``; None: none) after the headline, and the notes when
+    any row has one. Floats are shown with `fmt_float`, None as "-"."""
+    if not rows:
+        return "(no rows)"
+    names = list(rows[0].figures)
+    header = [*columns, names[0], *([ratio] if ratio else []), *names[1:]]
+    notes = any(r.note for r in rows)
+    if notes:
+        header.append("notes")
+
+    def cell(v):
+        return fmt_float(v) if isinstance(v, float) or v is None else str(v)
+
+    body = []
+    for r in rows:
+        values = [r.figures[n] for n in names]
+        body.append([*map(cell, r.label), cell(values[0]),
+                     *([cell(r.ratio)] if ratio else []), *map(cell, values[1:]),
+                     *([r.note] if notes else [])])
+    align = "".join("l" if isinstance(v, str) else "r" for v in rows[0].label)
+    align += "r" * (len(header) - len(align) - notes) + "l" * notes
+    return format_table(header, body, align=align)
+
+
+# ---------------------------------------------------------------------------------------------
+# Gradient checks
+
+
+def central_differences(f: Callable, x, step: float):
+    """Central finite differences of the scalar ``f`` at the 1-D array ``x``, one coordinate at
+    a time (2 evaluations each)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    out = []
+    for i in range(x.shape[0]):
+        e = jnp.zeros_like(x).at[i].set(step)
+        out.append((float(f(x + e)) - float(f(x - e))) / (2 * step))
+    return np.asarray(out)
+
+
+def gradient_table(names: Sequence[str], derivative, differences, *, digits: int = 4,
+                   derivative_name: str = "AD", differences_name: str = "FD"):
+    """(table of derivative vs finite difference per parameter, relative differences)."""
+    import numpy as np
+
+    derivative, differences = np.asarray(derivative), np.asarray(differences)
+    rel = np.abs(derivative - differences) / np.maximum(np.abs(differences), 1e-12)
+    rows = [Row((n,), {derivative_name: f"{a:.{digits}f}", differences_name: f"{b:.{digits}f}",
+                       "rel. diff": f"{100 * r:.1f}%"})
+            for n, a, b, r in zip(names, derivative, differences, rel)]
+    return table(["parameter"], rows, ratio=None), rel

@@ -67,36 +67,14 @@ to one CPU, by default the last one it may use; ``--cpu N`` picks core N, ``--no
 
 from __future__ import annotations
 
-import os
-import sys
+import _common
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+THREAD_ENV = _common.single_core_from_argv()
 
-import _common  # noqa: E402
-
-
-def _early_cpu(argv):
-    """``--cpu N`` from argv, read before jax starts (the affinity must be set first)."""
-    for i, a in enumerate(argv):
-        if a == "--cpu" and i + 1 < len(argv):
-            return int(argv[i + 1])
-        if a.startswith("--cpu="):
-            return int(a.split("=", 1)[1])
-    return None
-
-
-_CPU = _early_cpu(sys.argv)
-THREAD_ENV = _common.single_core_env(pin="--no-pin" not in sys.argv and _CPU is None)
-if _CPU is not None and "--no-pin" not in sys.argv:
-    os.sched_setaffinity(0, {_CPU})
-    THREAD_ENV["affinity"] = str(_CPU)
-
-import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import datetime  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
-import warnings  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -105,9 +83,6 @@ import numpy as np  # noqa: E402
 from jaxtrack import association  # noqa: E402
 from jaxtrack.filters.kalman import Gaussian  # noqa: E402
 from jaxtrack.models import measurement, motion  # noqa: E402
-
-# A warm persistent cache would hide compile time, which is a reported column.
-jax.config.update("jax_enable_compilation_cache", False)
 
 PACKAGES = ["jaxtrack", "jax", "jaxlib", "numpy", "scipy", "optax", "stonesoup"]
 
@@ -371,27 +346,6 @@ def joint_event_bound(scn, episode, t):
 # Timing and tables
 
 
-@dataclasses.dataclass
-class Row:
-    K: int
-    method: str            # gnn / lbp / exact (the jaxtrack method it is compared with)
-    library: str
-    variant: str
-    episodes: int
-    scans: int
-    timing: _common.Timing
-    note: str = ""
-    primary: bool = True   # the jaxtrack row Stone Soup rows are compared with
-
-    @property
-    def us(self):
-        return self.timing.per_step_us(self.episodes, self.scans)
-
-    @property
-    def cpu_us(self):
-        return self.timing.cpu_per_step_us(self.episodes, self.scans)
-
-
 def time_once(fn, *args):
     """A single call (for the slowest contender): wall and CPU time, one repeat."""
     c0, t0 = time.process_time(), time.perf_counter()
@@ -415,6 +369,8 @@ def jaxtrack_variants(args):
 
 
 def run_k(K, scn, args, rows, store):
+    """Time every contender at ``K`` targets; appends their rows to ``rows`` and returns the
+    line of Stone Soup / jaxtrack ratios."""
     E, T, M = scn.shape
     print(f"\n[K = {K}: {E} episodes x {T} scans, capacity M = {M}] ...", flush=True)
     calls, meta = {}, {}
@@ -422,7 +378,7 @@ def run_k(K, scn, args, rows, store):
         name = f"jaxtrack {label}" + ("" if primary else f", {note}")
         fn, fargs = jaxtrack_batched(method, scn, jnp.float32, **kw)
         calls[name] = (fn, fargs)
-        meta[name] = (method, "jaxtrack", label, E, T, f"f32, jit(vmap); {note}", primary)
+        meta[name] = (method, label, E, T, f"f32, jit(vmap); {note}", primary)
     ss_steps = min(T, args.stonesoup_steps or T)
     brute = None
     for method in ("GNNWith2DAssignment", "JPDAwithLBP", "JPDAwithEHM", "JPDA (brute force)"):
@@ -444,7 +400,7 @@ def run_k(K, scn, args, rows, store):
         inputs = stonesoup_inputs(scn, 0, steps, parts[2])
         name = f"stonesoup {method}"
         calls[name] = (stonesoup_episode, (method, parts, scn, 0, inputs, steps))
-        meta[name] = (SS_MATCH[method], "stonesoup", method, 1, steps, note
+        meta[name] = (SS_MATCH[method], method, 1, steps, note
                       + (f", {steps} of {T} scans" if steps < T else ""), False)
     results = _common.time_interleaved(
         calls, repeats=args.repeats, min_repeat_s=args.min_repeat_s,
@@ -457,47 +413,23 @@ def run_k(K, scn, args, rows, store):
         results[f"stonesoup {method}"] = time_once(
             stonesoup_episode, method, parts, scn, 0, inputs, steps, record)
         store[(K, "brute_record")] = (results[f"stonesoup {method}"][1], record)
-        meta[f"stonesoup {method}"] = (SS_MATCH[method], "stonesoup", method, 1, steps, note,
-                                       False)
+        meta[f"stonesoup {method}"] = (SS_MATCH[method], method, 1, steps, note, False)
+    references, pairs = {}, []
     for name, (timing, out) in results.items():
-        method, library, variant, episodes, scans, note, primary = meta[name]
-        row = Row(K, method, library, variant, episodes, scans, timing, note, primary)
-        rows.append(row)
+        method, variant, episodes, scans, note, primary = meta[name]
+        library = name.split()[0]
+        row = _common.timing_row((K, variant, library, episodes, scans), timing, episodes,
+                                 scans, unit="scan/ep", note=note)
         store[(K, name)] = out
-        print(f"  {name:<48} {row.us:10.1f} us/scan/ep  ({timing.number} calls x "
-              f"{timing.repeats} repeats, {timing.clean} clean, spread "
-              f"{100 * timing.spread:.0f}%)", flush=True)
-
-
-def table(rows):
-    header = ["K", "method", "library", "episodes", "scans", "us/scan/ep", "SS / jaxtrack",
-              "first call s", "cpu us/scan/ep", "clean", "spread", "notes"]
-    base = {(r.K, r.method): r.us for r in rows if r.library == "jaxtrack" and r.primary}
-    body = []
-    for r in rows:
-        ratio = "-"
-        if r.library == "stonesoup" and (r.K, r.method) in base:
-            ratio = f"{r.us / base[(r.K, r.method)]:.1f}"
-        body.append([r.K, r.variant,
-                     r.library, r.episodes, r.scans, _common.fmt_float(r.us), ratio,
-                     "-" if r.timing.first_call is None else f"{r.timing.first_call:.1f}",
-                     _common.fmt_float(r.cpu_us), f"{r.timing.clean}/{r.timing.repeats}",
-                     f"{100 * r.timing.spread:.0f}%", r.note])
-    return _common.format_table(header, body, align="rlllrrrrrrrl")
-
-
-def ratio_summary(rows):
-    """One line per K: Stone Soup / jaxtrack of each pairing."""
-    base = {(r.K, r.method): r for r in rows if r.library == "jaxtrack" and r.primary}
-    lines = []
-    for K in sorted({r.K for r in rows}):
-        parts = []
-        for r in rows:
-            if r.K == K and r.library == "stonesoup" and (K, r.method) in base:
-                j = base[(K, r.method)]
-                parts.append(f"{r.variant} / jaxtrack {j.variant} = {r.us / j.us:.0f}x")
-        lines.append(f"  K = {K:>2}: " + "; ".join(parts))
-    return lines
+        _common.progress(name, row, timing)
+        if library == "jaxtrack" and primary:
+            references[method] = row
+        elif library == "stonesoup" and method in references:
+            row = row.vs(references[method])
+            pairs.append(f"{variant} / jaxtrack {references[method].label[1]} = "
+                         f"{row.ratio:.0f}x")
+        rows.append(row)
+    return f"  K = {K:>2}: " + "; ".join(pairs)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -673,26 +605,11 @@ def agreement(scenarios, store, args):
 # ---------------------------------------------------------------------------------------------
 
 
-def git_describe():
-    import subprocess
-
-    import jaxtrack
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(jaxtrack.__file__)))
-    try:
-        return subprocess.run(["git", "-C", root, "describe", "--always", "--dirty"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="smoke test: 8 episodes x 5 scans, few repeats")
+    ap = _common.parser(__doc__, timing=True, single_core=True, agreement=True)
     ap.add_argument("--targets", type=int, nargs="+", default=[5, 10, 20], help="K values")
-    ap.add_argument("--episodes", type=int, help="jaxtrack batch (default 100; --quick 8)")
-    ap.add_argument("--steps", type=int, help="scans per episode T (default 20; --quick 5)")
+    ap.sized("--episodes", 100, 8, "jaxtrack batch")
+    ap.sized("--steps", 20, 5, "scans per episode T")
     ap.add_argument("--area", type=float, default=15.0,
                     help="side of the square the targets start in and clutter falls in (m)")
     ap.add_argument("--lbp-tol", type=float, default=1e-5,
@@ -705,53 +622,40 @@ def parse_args(argv=None):
     ap.add_argument("--brute-force-max", type=float, default=4e6,
                     help="skip brute-force JPDA when scan 0 has more joint-event combinations")
     ap.add_argument("--no-brute-force", action="store_true",
-                    help="skip brute-force JPDA above --brute-force-full")
+                    help="skip brute-force JPDA above --brute-force-full (always with --quick)")
     ap.add_argument("--no-variants", action="store_true",
                     help="only the primary jaxtrack rows (no max_cluster_tracks 4 row)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help="timing repeats, interleaved (default 7; --quick 3)")
     ap.add_argument("--no-breakdown", action="store_true", help="skip the per-stage table")
-    ap.add_argument("--no-check", action="store_true", help="skip the agreement checks")
-    ap.add_argument("--cpu", type=int, default=None,
-                    help="pin to this CPU (read before jax starts; default: the last one)")
-    ap.add_argument("--no-pin", action="store_true",
-                    help="do not restrict the process to one CPU (read before jax starts)")
     args = ap.parse_args(argv)
-    q = args.quick
-    args.episodes = args.episodes or (8 if q else 100)
-    args.steps = args.steps or (5 if q else 20)
-    args.repeats = args.repeats or (3 if q else 7)
-    args.min_repeat_s = 0.02 if q else 0.2
-    if q:
-        args.no_brute_force = True
+    args.no_brute_force = args.no_brute_force or args.quick
     return args
 
 
 def main(argv=None):
-    args = parse_args(argv)
-    warnings.filterwarnings("ignore", category=DeprecationWarning)
-    header = _common.machine_info(PACKAGES)
-    header.append(f"jaxtrack git {git_describe()}; jax backend "
-                  f"{jax.default_backend()}, devices {jax.devices()}")
-    header.append("threads: " + ", ".join(f"{k}={v!r}" for k, v in THREAD_ENV.items()))
-    header.append(f"load average at start (1, 5, 15 min): {_common.load_average()}")
-    header.append(
+    return _common.report(run, parse_args(argv))
+
+
+def run(args):
+    _common.setup_jax()
+    header = _common.header(
+        PACKAGES,
         f"scenario: K = {', '.join(map(str, args.targets))} CV targets starting uniformly in "
         f"{args.area:g} m x {args.area:g} m, dt {DT} s, q {Q_ACCEL}, position noise std "
         f"{SIGMA} m, P_D {P_DETECT}, Poisson clutter mean {CLUTTER_MEAN:g}/scan "
         f"(lambda {CLUTTER_MEAN / args.area**2:.4f} /m^2), gate P_G {GATE_PROB} "
-        f"(d2 <= {GATE_D2:.2f}); jaxtrack {args.episodes} episodes x T = {args.steps} scans")
+        f"(d2 <= {GATE_D2:.2f}); jaxtrack {args.episodes} episodes x T = {args.steps} scans",
+        threads=THREAD_ENV)
     print("\n".join(header), flush=True)
 
     rows, store, scenarios = [], {}, {}
-    clusters, lbp_lines = [], []
+    ratios, clusters, lbp_lines = [], [], []
     for K in args.targets:
-        scn = make_scenario(K, args.episodes, args.steps, args.area, seed=1000 + K)
+        scn = make_scenario(K, args.episodes, args.steps, args.area, seed=1000 + K + args.seed)
         scenarios[K] = scn
-        run_k(K, scn, args, rows, store)
+        ratios.append(run_k(K, scn, args, rows, store))
         clusters.append(cluster_report(scn, args))
         lbp_lines.append(lbp_report(scn, args.lbp_tol))
-    header.append(f"load average at end (1, 5, 15 min): {_common.load_average()}")
+    header.append(_common.load_line("end"))
 
     breakdown = None
     if not args.no_breakdown:
@@ -767,11 +671,12 @@ def main(argv=None):
         print(f"K = {K:>2}: detections per scan mean {scn.counts.mean():.1f} (clutter "
               f"{scn.clutter.mean():.1f}), capacity M = {scn.shape[2]}")
     print()
-    print(table(rows))
+    print(_common.table(["K", "method", "library", "episodes", "scans"], rows,
+                        ratio="SS / jaxtrack"))
     print("\nus/scan/ep = wall time per call / (episodes x scans timed); SS / jaxtrack = Stone "
           "Soup / jaxtrack of the same method (EHM and brute-force JPDA vs jaxtrack exact).")
     print("\nStone Soup / jaxtrack per scan per episode:")
-    print("\n".join(ratio_summary(rows)))
+    print("\n".join(ratios))
     print("\nClusters of the gating graph (jaxtrack exact, every scan of every episode):")
     print("\n".join(clusters))
     print("\nLBP iterations (jaxtrack, float32):")

@@ -57,19 +57,11 @@ busy and took 1.1-1.45x longer than pinned.
 
 from __future__ import annotations
 
-import os
-import sys
+import _common
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+THREAD_ENV = _common.single_core_from_argv()
 
-import _common  # noqa: E402
-
-THREAD_ENV = _common.single_core_env(pin="--no-pin" not in sys.argv)
-
-import argparse  # noqa: E402
 import datetime  # noqa: E402
-import subprocess  # noqa: E402
-import warnings  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -77,9 +69,6 @@ import numpy as np  # noqa: E402
 
 from jaxtrack.filters import kalman, ukf  # noqa: E402
 from jaxtrack.models import measurement, motion  # noqa: E402
-
-# A warm persistent cache would hide compile time, which is a reported column.
-jax.config.update("jax_enable_compilation_cache", False)
 
 PACKAGES = ["jaxtrack", "jax", "jaxlib", "numpy", "scipy", "dynamax", "cuthbert", "filterpy",
             "stonesoup"]
@@ -483,23 +472,6 @@ def stonesoup_ukf(p, steps, scheme):
 # Runner
 
 
-class Row:
-    def __init__(self, case, library, episodes, steps, timing, timed_episodes=None,
-                 timed_steps=None, note=""):
-        self.case, self.library, self.episodes, self.steps = case, library, episodes, steps
-        self.timing, self.note = timing, note
-        self.timed_episodes = timed_episodes or episodes
-        self.timed_steps = timed_steps or steps
-
-    @property
-    def us(self):
-        return self.timing.per_step_us(self.timed_episodes, self.timed_steps)
-
-    @property
-    def cpu_us(self):
-        return self.timing.cpu_per_step_us(self.timed_episodes, self.timed_steps)
-
-
 def run_case(case, problem_full, jax_impls, python_impls, args, rows, outputs):
     """Time every implementation at N = 1 and N = args.episodes, interleaved per N."""
     for episodes in sorted({1, args.episodes}):
@@ -528,29 +500,15 @@ def run_case(case, problem_full, jax_impls, python_impls, args, rows, outputs):
         results = _common.time_interleaved(calls, repeats=args.repeats,
                                            min_repeat_s=args.min_repeat_s,
                                            compiled=[n for n, _ in jax_impls])
+        case_rows = {}
         for name, (timing, out) in results.items():
             timed_episodes, timed_steps, note = meta[name]
             outputs[(case, episodes, name)] = out
-            rows.append(Row(case, name, episodes, args.steps, timing, timed_episodes,
-                            timed_steps, note))
-            print(f"  {name:<12} {rows[-1].us:9.3f} us/ep-step  ({timing.number} calls x "
-                  f"{timing.repeats} repeats, {timing.clean} clean, spread "
-                  f"{100 * timing.spread:.0f}%)", flush=True)
-
-
-def table(rows):
-    header = ["case", "library", "N", "T", "us/ep-step", "vs jaxtrack", "first call s",
-              "cpu us/ep-step", "clean", "spread", "notes"]
-    base = {(r.case, r.episodes): r.us for r in rows if r.library == "jaxtrack"}
-    body = []
-    for r in rows:
-        ratio = r.us / base[(r.case, r.episodes)] if (r.case, r.episodes) in base else None
-        body.append([r.case, r.library, r.episodes, r.steps, _common.fmt_float(r.us),
-                     "-" if ratio is None else f"{ratio:.2f}",
-                     "-" if r.timing.first_call is None else f"{r.timing.first_call:.2f}",
-                     _common.fmt_float(r.cpu_us), f"{r.timing.clean}/{r.timing.repeats}",
-                     f"{100 * r.timing.spread:.0f}%", r.note])
-    return _common.format_table(header, body, align="llrrrrrrrrl")
+            case_rows[name] = _common.timing_row((case, name, episodes, args.steps), timing,
+                                                 timed_episodes, timed_steps, unit="ep-step",
+                                                 note=note)
+            _common.progress(name, case_rows[name], timing)
+        rows.extend(r.vs(case_rows["jaxtrack"]) for r in case_rows.values())
 
 
 def linalg_table(args):
@@ -561,7 +519,7 @@ def linalg_table(args):
     from jaxtrack.filters import _linalg
 
     batch_size = args.episodes
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(2 + args.seed)
     rows, calls = [], {}
     for n in (2, 4, 5):
         a = rng.standard_normal((batch_size, n, n))
@@ -676,60 +634,35 @@ def agreement(kf_problem, ct_problem_, scheme, outputs, args):
     return lines
 
 
-def git_describe():
-    import jaxtrack
-
-    root = os.path.dirname(os.path.dirname(os.path.abspath(jaxtrack.__file__)))
-    try:
-        return subprocess.run(["git", "-C", root, "describe", "--always", "--dirty"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="smoke test: N = 1 and 8, T = 20, few repeats")
-    ap.add_argument("--episodes", type=int, help="batched N (default 1000; --quick 8)")
-    ap.add_argument("--steps", type=int, help="T (default 200; --quick 20)")
-    ap.add_argument("--python-episodes", type=int, default=None,
-                    help="episodes timed for filterpy when N > 1 (default 20; --quick 2)")
+    ap = _common.parser(__doc__, timing=True, single_core=True, agreement=True)
+    ap.sized("--episodes", 1000, 8, "batched N")
+    ap.sized("--steps", 200, 20, "T")
+    ap.sized("--python-episodes", 20, 2, "episodes timed for filterpy when N > 1")
     ap.add_argument("--stonesoup-steps", type=int, default=None,
                     help="cap on steps timed for Stone Soup (default: T)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help="timing repeats, interleaved over libraries (default 7; --quick 3)")
     ap.add_argument("--alpha", type=float, default=1.0, help="Merwe alpha for every UKF")
     ap.add_argument("--beta", type=float, default=2.0, help="Merwe beta for every UKF")
     ap.add_argument("--kappa", type=float, default=0.0, help="Merwe kappa for every UKF")
-    ap.add_argument("--no-check", action="store_true", help="skip the agreement checks")
-    ap.add_argument("--no-pin", action="store_true",
-                    help="do not restrict the process to one CPU (read before jax starts)")
-    args = ap.parse_args(argv)
-    q = args.quick
-    args.episodes = args.episodes or (8 if q else 1000)
-    args.steps = args.steps or (20 if q else 200)
-    args.python_episodes = args.python_episodes or (2 if q else 20)
-    args.repeats = args.repeats or (3 if q else 7)
-    args.min_repeat_s = 0.02 if q else 0.2
-    return args
+    return ap.parse_args(argv)
 
 
 def main(argv=None):
-    args = parse_args(argv)
-    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    return _common.report(run, parse_args(argv))
+
+
+def run(args):
+    _common.setup_jax()
     scheme = (args.alpha, args.beta, args.kappa)
-    header = _common.machine_info(PACKAGES)
-    header.append(f"jaxtrack git {git_describe()}; jax backend {jax.default_backend()}, "
-                  f"devices {jax.devices()}")
-    header.append("threads: " + ", ".join(f"{k}={v!r}" for k, v in THREAD_ENV.items()))
-    header.append(f"load average at start (1, 5, 15 min): {_common.load_average()}")
-    header.append(f"problem: N = 1 and {args.episodes} episodes x T = {args.steps} steps; "
-                  f"UKF Merwe points alpha={args.alpha}, beta={args.beta}, kappa={args.kappa}")
+    header = _common.header(
+        PACKAGES, f"problem: N = 1 and {args.episodes} episodes x T = {args.steps} steps; "
+        f"UKF Merwe points alpha={args.alpha}, beta={args.beta}, kappa={args.kappa}",
+        threads=THREAD_ENV)
     print("\n".join(header), flush=True)
 
-    kf_problem = with_derived_kf(cv_problem(args.episodes, args.steps))
-    ct_prob = with_derived_ukf(ct_problem(args.episodes, args.steps), scheme)
+    kf_problem = with_derived_kf(cv_problem(args.episodes, args.steps, seed=args.seed))
+    ct_prob = with_derived_ukf(ct_problem(args.episodes, args.steps, seed=1 + args.seed),
+                               scheme)
     ss_steps = args.stonesoup_steps
 
     rows, outputs = [], {}
@@ -747,10 +680,10 @@ def main(argv=None):
               ("stonesoup", lambda p, e, t: stonesoup_ukf(p, t, scheme), True, ss_steps)],
              args, rows, outputs)
 
-    header.append(f"load average at end (1, 5, 15 min): {_common.load_average()}")
+    header.append(_common.load_line("end"))
     print("\n" + "\n".join(header))
     print()
-    print(table(rows))
+    print(_common.table(["case", "library", "N", "T"], rows))
     print("\nus/ep-step = wall time per call / (episodes x steps timed); vs jaxtrack = peer / "
           "jaxtrack (> 1: jaxtrack faster).\nJAX libraries: float32, N = 1 jit(filter), N > 1 "
           "jit(vmap(filter)); cuthbert = cuthbert.filter (sequential scan of its associative "

@@ -3,6 +3,7 @@
     python benchmarks/following.py [--episodes 256] [--duration 60] [--estimators kf,pf,gnn]
     python benchmarks/following.py --gradcheck [--episodes 16] [--duration 20]
         [--no-avoidance] [--people K] [--fd-step H]
+    python benchmarks/following.py --quick [--gradcheck]
 
 The timing run compiles ``vmap(episode)`` once per estimator for a batch of ``--episodes`` and
 reports the compile time, the wall time of the batch, microseconds per 10 Hz step per episode
@@ -17,29 +18,41 @@ of the same mean (step ``--fd-step`` in log space).
 
 from __future__ import annotations
 
-import argparse
-import os
 import sys
 import time
 
-import jax
-import jax.numpy as jnp
-import numpy as np
+import _common
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PACKAGES = ["jaxtrack", "jax", "jaxlib", "numpy", "mujoco", "mujoco-mjx"]
 
-from sims.following import episode as ep  # noqa: E402
-from sims.following import estimators, scene  # noqa: E402
+
+def build(kind, args):
+    """(episode function, parameters, config) of the scenario with estimator ``kind``.
+
+    The one place this benchmark calls into `sims.following`.
+    """
+    from jaxtrack.control import behaviour
+    from sims.following import episode, scene
+
+    cfg = episode.EpisodeConfig(scene.build(num_people=8), kind, duration=args.duration,
+                                distractors=args.people,
+                                behaviour=behaviour.FollowingConfig(avoidance=not args.no_avoidance))
+    return episode.make_episode(cfg), episode.make_params(cfg), cfg
 
 
 def timing(args):
-    sc = scene.build(num_people=8)
+    import jax
+    import numpy as np
+
+    header = _common.header(
+        PACKAGES, f"{args.episodes} episodes x {args.duration:.0f} s, 10 Hz, float32, "
+        f"{args.people} distractors, avoidance {not args.no_avoidance}")
+    print("\n".join(header), flush=True)
     rows = []
     for kind in args.estimators.split(","):
-        cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind=kind), duration=args.duration)
-        params = ep.make_params(cfg)
+        episode, params, cfg = build(kind, args)
         keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
-        fn = jax.jit(jax.vmap(ep.make_episode(cfg), (0, None)))
+        fn = jax.jit(jax.vmap(episode, (0, None)))
         t0 = time.perf_counter()
         compiled = fn.lower(keys, params).compile()
         tc = time.perf_counter() - t0
@@ -49,79 +62,67 @@ def timing(args):
                                                             args.episodes), params))
         tr = time.perf_counter() - t0
         m = {k: np.asarray(v, float) for k, v in m.items()}
-        us = tr / (args.episodes * cfg.num_frames) * 1e6
-        rows.append((kind, tc, tr, us, args.episodes * args.duration / tr, m))
-        print(f"{kind}: compile {tc:.1f} s, run {tr:.1f} s", file=sys.stderr, flush=True)
-    print(f"\n{args.episodes} episodes x {args.duration:.0f} s, 10 Hz, float32, "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
-    print(f"{'estimator':<10}{'compile [s]':>12}{'run [s]':>10}{'us/ep-step':>12}"
-          f"{'sim s/s':>10}{'follow RMS':>12}{'lost':>8}{'MOTA':>8}")
-    for kind, tc, tr, us, rate, m in rows:
         mota = np.nanmean(m["mota"]) if np.isfinite(m["mota"]).any() else float("nan")
-        print(f"{kind:<10}{tc:>12.1f}{tr:>10.1f}{us:>12.0f}{rate:>10.0f}"
-              f"{m['following_rms'].mean():>12.3f}{m['lost_fraction'].mean():>8.1%}"
-              f"{mota:>8.1%}")
+        rows.append(_common.Row((kind,), {
+            "compile [s]": tc, "run [s]": tr,
+            "us/ep-step": tr / (args.episodes * cfg.num_frames) * 1e6,
+            "sim s/s": args.episodes * args.duration / tr,
+            "follow RMS": f"{m['following_rms'].mean():.3f}",
+            "lost": f"{m['lost_fraction'].mean():.1%}", "MOTA": f"{mota:.1%}"}))
+        print(f"{kind}: compile {tc:.1f} s, run {tr:.1f} s", file=sys.stderr, flush=True)
+    header.append(_common.load_line("end"))
+    print("\n" + "\n".join(header) + "\n")
+    print(_common.table(["estimator"], rows, ratio=None))
 
 
 def gradcheck(args):
-    sc = scene.build(num_people=8)
-    cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="kf"), duration=args.duration,
-                           distractors=args.people,
-                           avoidance=not args.no_avoidance)
-    params = ep.make_params(cfg)
-    episode = ep.make_episode(cfg)
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    episode, params, _ = build("kf", args)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
     names = ("log k1", "log k2", "log r (KF)")
 
     def with_theta(theta):
-        f = params.follower._replace(log_k1=theta[0], log_k2=theta[1])
-        e = params.estimator._replace(kf_log_r=theta[2])
-        return ep.EpisodeParams(f, e)
+        return params._replace(
+            follower=params.follower._replace(log_k1=theta[0], log_k2=theta[1]),
+            estimator=params.estimator._replace(log_r=theta[2]))
 
     @jax.jit
     def loss(theta):
         m = jax.vmap(episode, (0, None))(keys, with_theta(theta))
         return jnp.mean(m["following_rms"])
 
+    print("\n".join(_common.header(PACKAGES)), flush=True)
     theta0 = jnp.stack([params.follower.log_k1, params.follower.log_k2,
-                        params.estimator.kf_log_r])
+                        params.estimator.log_r])
     t0 = time.perf_counter()
     g = np.asarray(jax.jit(jax.grad(loss))(theta0))
     t_ad = time.perf_counter() - t0
-    h = args.fd_step
-    fd = []
-    for i in range(3):
-        e = jnp.zeros(3).at[i].set(h)
-        fd.append(float((loss(theta0 + e) - loss(theta0 - e)) / (2 * h)))
+    fd = _common.central_differences(loss, theta0, args.fd_step)
     print(f"\nclosed-loop gradient of the mean following RMS over {args.episodes} episodes x "
           f"{args.duration:.0f} s (KF estimator, {args.people} distractors, avoidance "
           f"{not args.no_avoidance}; AD {t_ad:.0f} s incl. "
-          f"compile; FD step {h} in log space)")
-    print(f"{'parameter':<14}{'AD':>12}{'FD':>12}{'rel. diff':>12}")
-    for n, a, b in zip(names, g, fd):
-        print(f"{n:<14}{a:>12.4f}{b:>12.4f}{abs(a - b) / max(abs(b), 1e-12):>12.1%}")
+          f"compile; FD step {args.fd_step} in log space)")
+    print(_common.gradient_table(names, g, fd)[0])
 
 
-def main():
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--episodes", type=int, default=None)
-    p.add_argument("--duration", type=float, default=None)
-    p.add_argument("--estimators", default="kf,pf,gnn,jpda,nnjpda,truth")
-    p.add_argument("--people", type=int, default=4)
-    p.add_argument("--gradcheck", action="store_true")
-    p.add_argument("--fd-step", type=float, default=0.05)
-    p.add_argument("--no-avoidance", action="store_true",
-                   help="gradient check without the dynamic-window layer")
-    p.add_argument("--seed", type=int, default=0)
-    args = p.parse_args()
-    if args.gradcheck:
-        args.episodes = args.episodes or 16
-        args.duration = args.duration or 20.0
-        gradcheck(args)
-    else:
-        args.episodes = args.episodes or 256
-        args.duration = args.duration or 60.0
-        timing(args)
+def main(argv=None):
+    ap = _common.parser(__doc__, gradcheck="reverse-mode gradient vs central finite "
+                        "differences (see the module notes)")
+    ap.sized("--episodes", 256, 8, "episodes per batch", gradcheck=(16, 2))
+    ap.sized("--duration", 60.0, 10.0, "simulated seconds per episode", type=float,
+             gradcheck=(20.0, 2.0))
+    ap.add_argument("--estimators", default="kf,pf,gnn,jpda,nn_jpda,truth",
+                    help="comma-separated estimator kinds to time")
+    ap.add_argument("--people", type=int, default=4, help="distractors (default 4)")
+    ap.add_argument("--fd-step", type=float, default=0.05,
+                    help="finite-difference step in log space (default 0.05)")
+    ap.add_argument("--no-avoidance", action="store_true",
+                    help="without the dynamic-window layer")
+    args = ap.parse_args(argv)
+    return _common.report(gradcheck if args.gradcheck else timing, args)
 
 
 if __name__ == "__main__":

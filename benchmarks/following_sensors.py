@@ -1,6 +1,6 @@
 """Benchmark: the person-following episode's laser sensors, vmapped over episodes (float32).
 
-Usage: python benchmarks/following_sensors.py [--episodes 256] [--repeats 7]
+Usage: python benchmarks/following_sensors.py [--episodes 256] [--repeats 7] [--quick]
 
 Per 10 Hz frame, every episode of `sims.following.episode` casts one 667-beam scan
 (`sims.following.lidar.scan`) against 40 circles (16 people's leg sections + 24 furniture legs)
@@ -12,24 +12,17 @@ sizes: a 10 x 8 m room, six four-legged tables and chairs (3 cm legs), eight peo
 Each piece is ``jit(vmap(f))`` over ``--episodes`` episodes; the table gives microseconds per
 episode (call time / episodes) and the first call's extra time (tracing + compilation). Timing
 is `benchmarks._common.time_interleaved` (median over clean repeats, round-robin) on all the
-cores the process may use, as the episode runs.
-
-Measured (256 episodes, 2-core Xeon shared with other jobs, load average 3.2-3.5; the previous
-implementation run back to back from the same script, alternating): laser scan 26-44 us per
-episode (previously 72-74), leg detection 74-88 us (previously 215-216); compile 2 s for the
-detector. Figures vary by +-30 % with the machine's load.
+cores the process may use, as the episode runs. Measured runs:
+``benchmarks/results/following_sensors.md``.
 """
 
 from __future__ import annotations
 
-import argparse
 import functools
-import os
-import sys
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _common
 
-import _common  # noqa: E402
+PACKAGES = ["jaxtrack", "jax", "jaxlib", "numpy", "mujoco", "mujoco-mjx"]
 
 
 def scenes(key, episodes, dtype):
@@ -65,11 +58,12 @@ def scenes(key, episodes, dtype):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--episodes", type=int, default=256)
-    parser.add_argument("--repeats", type=int, default=7)
-    args = parser.parse_args(argv)
+    ap = _common.parser(__doc__, timing=True)
+    ap.sized("--episodes", 256, 8, "episodes vmapped")
+    return _common.report(run, ap.parse_args(argv))
 
+
+def run(args):
     import jax
     import jax.numpy as jnp
 
@@ -80,9 +74,9 @@ def main(argv=None):
     n = args.episodes
     cfg = lidar.LaserConfig()
     angles = lidar.beam_angles(cfg, dtype)
-    key = jax.random.PRNGKey(0)
+    key = jax.random.PRNGKey(args.seed)
     pose, circles, walls = scenes(key, n, dtype)
-    keys = jax.random.split(jax.random.PRNGKey(1), n)
+    keys = jax.random.split(jax.random.PRNGKey(1 + args.seed), n)
 
     scan = jax.jit(jax.vmap(functools.partial(lidar.scan, cfg=cfg)))
     ranges = scan(keys, pose, circles, walls)
@@ -101,17 +95,17 @@ def main(argv=None):
         "laser scan (cast + noise)": (scan, (keys, pose, circles, walls)),
         "leg detection": (detect_b, (ranges, prev_xy, prev.legs_mask)),
     }
-    load_before = _common.load_average()
-    out = _common.time_interleaved(calls, repeats=args.repeats, compiled=tuple(calls))
+    header = _common.header(
+        PACKAGES, f"{n} episodes vmapped, float32, {cfg.num_beams} beams, 40 circles + 4 "
+        f"walls, max_segments=48, max_people=8")
+    print("\n".join(header), flush=True)
+    out = _common.time_interleaved(calls, repeats=args.repeats, min_repeat_s=args.min_repeat_s,
+                                   compiled=tuple(calls))
     det = out["leg detection"][1]
-    print(f"{n} episodes vmapped, float32, {cfg.num_beams} beams, 40 circles + 4 walls, "
-          f"max_segments=48, max_people=8")
-    print(f"cpu: {_common.cpu_model()}; affinity: {sorted(os.sched_getaffinity(0))}")
-    print(f"load average before: {load_before}; after: {_common.load_average()}")
-    print(f"{'piece':<28}{'us/episode':>12}{'cpu us/ep':>12}{'clean':>8}{'compile s':>11}")
-    for name, (t, _) in out.items():
-        print(f"{name:<28}{1e6 * t.seconds / n:>12.1f}{1e6 * t.cpu_seconds / n:>12.1f}"
-              f"{t.clean:>5}/{t.repeats:<2}{t.first_call:>11.2f}")
+    header.append(_common.load_line("end"))
+    print("\n" + "\n".join(header) + "\n")
+    print(_common.table(["piece"], [_common.timing_row((name,), t, n, unit="episode")
+                                    for name, (t, _) in out.items()], ratio=None))
     print(f"mean per scan: {float(jnp.mean(jnp.sum(det.segments.mask, -1))):.1f} segments, "
           f"{float(jnp.mean(jnp.sum(det.legs_mask, -1))):.1f} leg candidates, "
           f"{float(jnp.mean(jnp.sum(det.people.mask, -1))):.1f} people")

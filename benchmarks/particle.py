@@ -77,19 +77,12 @@ Usage:
 
 from __future__ import annotations
 
-import os
-import sys
+import _common
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+THREAD_ENV = _common.single_core_from_argv()
 
-import _common  # noqa: E402
-
-THREAD_ENV = _common.single_core_env(pin="--no-pin" not in sys.argv)
-
-import argparse  # noqa: E402
 import datetime  # noqa: E402
 import math  # noqa: E402
-import warnings  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -98,9 +91,6 @@ from jax.scipy.special import logsumexp  # noqa: E402
 
 from jaxtrack.filters import kalman, particle  # noqa: E402
 from jaxtrack.models import measurement, motion  # noqa: E402
-
-# A warm persistent cache would hide compile time, which is a reported column.
-jax.config.update("jax_enable_compilation_cache", False)
 
 PACKAGES = ["jaxtrack", "jax", "jaxlib", "numpy", "scipy", "cuthbert", "particles", "filterpy",
             "stonesoup", "numba"]
@@ -375,21 +365,6 @@ def stonesoup_pf(p, steps, seed=None, with_loglik=False):
 # Runner
 
 
-class Row:
-    def __init__(self, library, episodes, steps, timing, timed_episodes, timed_steps, note):
-        self.library, self.episodes, self.steps = library, episodes, steps
-        self.timing, self.note = timing, note
-        self.timed_episodes, self.timed_steps = timed_episodes, timed_steps
-
-    @property
-    def us(self):
-        return self.timing.per_step_us(self.timed_episodes, self.timed_steps)
-
-    @property
-    def cpu_us(self):
-        return self.timing.cpu_per_step_us(self.timed_episodes, self.timed_steps)
-
-
 JAX_IMPLS = [("jaxtrack", jaxtrack_pf), ("jaxtrack (no covs)", jaxtrack_no_covs_pf),
              ("jax (hand-written)", handwritten_pf),
              ("cuthbert", cuthbert_pf), ("cuthbert*", cuthbert_no_callback_pf)]
@@ -432,7 +407,7 @@ def run_case(p, episodes, args, rows, skip):
     batched = episodes > 1
     print(f"\n[N={episodes}, T={args.steps}, {args.particles} particles] ...", flush=True)
     calls, meta, compiled = {}, {}, []
-    key = jax.random.key(1, impl=args.prng)
+    key = jax.random.key(1 + args.seed, impl=args.prng)
     for name, factory in JAX_IMPLS + [FLOOR]:
         if name in skip:
             continue
@@ -466,27 +441,15 @@ def run_case(p, episodes, args, rows, skip):
             f"; timed {ss_steps} of {args.steps} steps" if ss_steps < args.steps else ""))
     results = _common.time_interleaved(calls, repeats=args.repeats,
                                        min_repeat_s=args.min_repeat_s, compiled=compiled)
+    case_rows = {}
     for name, (timing, _) in results.items():
         timed_episodes, timed_steps, note = meta[name]
-        rows.append(Row(name, episodes, args.steps, timing, timed_episodes, timed_steps, note))
-        print(f"  {name:<20} {rows[-1].us:9.2f} us/ep-step  ({timing.number} calls x "
-              f"{timing.repeats} repeats, {timing.clean} clean, spread "
-              f"{100 * timing.spread:.0f}%)", flush=True)
-
-
-def table(rows):
-    header = ["library", "N", "T", "us/ep-step", "vs jaxtrack", "first call s", "cpu us/ep-step",
-              "clean", "spread", "notes"]
-    base = {r.episodes: r.us for r in rows if r.library == "jaxtrack"}
-    body = []
-    for r in rows:
-        ratio = r.us / base[r.episodes] if r.episodes in base else None
-        body.append([r.library, r.episodes, r.steps, _common.fmt_float(r.us),
-                     "-" if ratio is None else f"{ratio:.2f}",
-                     "-" if r.timing.first_call is None else f"{r.timing.first_call:.2f}",
-                     _common.fmt_float(r.cpu_us), f"{r.timing.clean}/{r.timing.repeats}",
-                     f"{100 * r.timing.spread:.0f}%", r.note])
-    return _common.format_table(header, body, align="lrrrrrrrrl")
+        case_rows[name] = _common.timing_row((name, episodes, args.steps), timing,
+                                             timed_episodes, timed_steps, unit="ep-step",
+                                             note=note)
+        _common.progress(name, case_rows[name], timing)
+    reference = case_rows.get("jaxtrack")
+    rows.extend(r.vs(reference) if reference else r for r in case_rows.values())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -522,7 +485,7 @@ def agreement(p, args, skip):
     # Run r of every library starts from the same fresh draw x0[r] ~ N(m0, P0): with one fixed
     # set of initial particles the estimates would target the likelihood under that empirical
     # prior, not the KF's Gaussian one.
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(7 + args.seed)
     n_particles = p["x0"].shape[1]
     x0s = p["m0"][0] + rng.standard_normal((jax_runs, n_particles, 4)) @ np.linalg.cholesky(
         p["P0"]).T
@@ -532,7 +495,7 @@ def agreement(p, args, skip):
 
     one = episode0(0)
     results = {}  # name -> (log-likelihoods [R], means [R, T, 4])
-    keys = jax.random.split(jax.random.key(123, impl=args.prng), jax_runs)
+    keys = jax.random.split(jax.random.key(123 + args.seed, impl=args.prng), jax_runs)
     x0 = jnp.asarray(x0s, jnp.float32)
     zs = jnp.broadcast_to(jnp.asarray(p["zs"][0], jnp.float32), (jax_runs,) + p["zs"].shape[1:])
     for name, factory in JAX_IMPLS:
@@ -543,15 +506,17 @@ def agreement(p, args, skip):
         ll, means = jax_summary(name, jax.jit(jax.vmap(run))(keys, x0, zs))
         results[name] = (np.asarray(ll, np.float64), np.asarray(means, np.float64))
     if "particles" not in skip:
-        pfs = [particles_pf(episode0(r), 1, steps, seed=1000 + r)[0] for r in range(runs)]
+        pfs = [particles_pf(episode0(r), 1, steps, seed=1000 + args.seed + r)[0]
+               for r in range(runs)]
         results["particles"] = (np.array([pf.logLt for pf in pfs]),
                                 np.array([[m for m, _ in pf.summaries.moments] for pf in pfs]))
     if "filterpy" not in skip:
-        outs = [filterpy_pf(episode0(r), 1, steps, seed=2000 + r)[0] for r in range(runs)]
+        outs = [filterpy_pf(episode0(r), 1, steps, seed=2000 + args.seed + r)[0]
+                for r in range(runs)]
         results["numpy+filterpy"] = (np.array([o[2] for o in outs]),
                                      np.array([o[0] for o in outs]))
     if "stonesoup" not in skip:
-        outs = [stonesoup_pf(episode0(r), steps, seed=3000 + r, with_loglik=True)
+        outs = [stonesoup_pf(episode0(r), steps, seed=3000 + args.seed + r, with_loglik=True)
                 for r in range(max(2, runs // 2))]
         results["stonesoup"] = (np.array([o[1] for o in outs]), np.array([o[0] for o in outs]))
     ll_kf, means_kf = kf_loglik(p)
@@ -582,21 +547,15 @@ def agreement(p, args, skip):
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="smoke test: N = 1 and 4, T = 20, few repeats")
-    ap.add_argument("--episodes", type=int, help="batched N (default 100; --quick 4)")
-    ap.add_argument("--steps", type=int, help="T (default 200; --quick 20)")
+    ap = _common.parser(__doc__, timing=True, single_core=True, agreement=True)
+    ap.sized("--episodes", 100, 4, "batched N")
+    ap.sized("--steps", 200, 20, "T")
     ap.add_argument("--particles", type=int, default=1000, help="particles (default 1000)")
-    ap.add_argument("--python-episodes", type=int, default=None,
-                    help="episodes timed for the numpy libraries when N > 1 (default 3)")
+    ap.sized("--python-episodes", 3, 1, "episodes timed for the numpy libraries when N > 1")
     ap.add_argument("--stonesoup-steps", type=int, default=None,
                     help="cap on steps timed for Stone Soup (default: T)")
-    ap.add_argument("--repeats", type=int, default=None,
-                    help="timing repeats, interleaved over libraries (default 7; --quick 3)")
-    ap.add_argument("--check-runs", type=int, default=None,
-                    help="seeds per numpy library in the agreement check (default 20; JAX "
-                         "libraries 5x as many, Stone Soup half)")
+    ap.sized("--check-runs", 20, 4, "seeds per numpy library in the agreement check (JAX "
+             "libraries 5x as many, Stone Soup half)")
     ap.add_argument("--skip", default="",
                     help="comma-separated libraries to leave out (jaxtrack, 'jaxtrack (no "
                          "covs)', 'jax (hand-written)', 'user functions only', cuthbert, "
@@ -609,46 +568,35 @@ def parse_args(argv=None):
                     help="jax_threefry_partitionable for every JAX library (default on, JAX's "
                          "default since 0.5; off: the earlier threefry bit layout, about 3x "
                          "faster normal draws on XLA:CPU)")
-    ap.add_argument("--no-check", action="store_true", help="skip the agreement check")
-    ap.add_argument("--no-pin", action="store_true",
-                    help="do not restrict the process to one CPU (read before jax starts)")
-    args = ap.parse_args(argv)
-    q = args.quick
-    args.episodes = args.episodes or (4 if q else 100)
-    args.steps = args.steps or (20 if q else 200)
-    args.python_episodes = args.python_episodes or (1 if q else 3)
-    args.repeats = args.repeats or (3 if q else 7)
-    args.check_runs = args.check_runs or (4 if q else 20)
-    args.min_repeat_s = 0.02 if q else 0.2
-    return args
+    return ap.parse_args(argv)
 
 
 def main(argv=None):
-    args = parse_args(argv)
+    return _common.report(run, parse_args(argv))
+
+
+def run(args):
+    _common.setup_jax()
     jax.config.update("jax_threefry_partitionable", args.threefry_partitionable == "on")
-    warnings.filterwarnings("ignore", category=DeprecationWarning)
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
-    header = _common.machine_info(PACKAGES)
-    header.append(f"jaxtrack git {_common.git_describe(particle.__file__)}; jax backend "
-                  f"{jax.default_backend()}, devices {jax.devices()}")
-    header.append("threads: " + ", ".join(f"{k}={v!r}" for k, v in THREAD_ENV.items()))
-    header.append(f"load average at start (1, 5, 15 min): {_common.load_average()}")
-    header.append(f"problem: bootstrap PF, {args.particles} particles, 4-state CV (dt {DT}, "
-                  f"q {CV_Q}), 2-D position (std {R_STD[0]}/{R_STD[1]} m, rho {R_RHO}); "
-                  f"N = 1 and {args.episodes} episodes x T = {args.steps} steps; systematic "
-                  f"resampling every step; JAX PRNG {args.prng}, "
-                  f"jax_threefry_partitionable={jax.config.jax_threefry_partitionable}")
+    header = _common.header(
+        PACKAGES, f"problem: bootstrap PF, {args.particles} particles, 4-state CV (dt {DT}, "
+        f"q {CV_Q}), 2-D position (std {R_STD[0]}/{R_STD[1]} m, rho {R_RHO}); "
+        f"N = 1 and {args.episodes} episodes x T = {args.steps} steps; systematic "
+        f"resampling every step; JAX PRNG {args.prng}, "
+        f"jax_threefry_partitionable={jax.config.jax_threefry_partitionable}",
+        threads=THREAD_ENV)
     print("\n".join(header), flush=True)
 
-    p = make_problem(args.episodes, args.steps, args.particles)
+    p = make_problem(args.episodes, args.steps, args.particles, seed=args.seed)
     rows = []
     for episodes in sorted({1, args.episodes}):
         run_case(p, episodes, args, rows, skip)
 
-    header.append(f"load average at end of timing (1, 5, 15 min): {_common.load_average()}")
+    header.append(_common.load_line("end of timing"))
     print("\n" + "\n".join(header))
     print()
-    print(table(rows))
+    print(_common.table(["library", "N", "T"], rows))
     print("\nus/ep-step = wall time per call / (episodes x steps timed); vs jaxtrack = peer / "
           "jaxtrack (> 1: jaxtrack faster).\nJAX: float32, N = 1 jit(filter), N > 1 "
           "jit(vmap(filter)); numpy libraries: float64, one Python loop per episode.")

@@ -6,51 +6,49 @@ Usage:
   python benchmarks/run_all.py --only particle,filters
   python benchmarks/run_all.py --gradcheck      # also the closed-loop gradient checks
 
+Every script is run with ``--quick`` under ``--quick``, and with ``--seed`` when it is given.
 With ``--quick``, the gradient checks run at toy sizes (2 episodes): that exercises their code,
 but their pass / fail verdict at that size is noise (the finite differences of 2 short
 episodes), so a quick run does not count them as failures.
 
-Each script's output goes to ``benchmarks/results/<UTC date>/<name>.log`` (and to the terminal);
-a summary of exit codes and wall times ends the run. The exit code is non-zero when any
-benchmark failed. Run from the benchmark environment (see README.md, "Running").
+Each script's output goes to ``benchmarks/results/raw/<UTC date>/<name>.log`` (and to the
+terminal; git ignores ``raw/``); a summary of exit codes and wall times ends the run. The exit
+code is non-zero when any benchmark failed. Run from the benchmark environment (see README.md,
+"Running").
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import _common
+
 HERE = Path(__file__).resolve().parent
 
-# name -> (script, full-size arguments, quick arguments)
+# name -> (script, arguments)
 BENCHMARKS = {
-    "filters": ("filters.py", [], ["--quick"]),
-    "particle": ("particle.py", [], ["--quick"]),
-    "association": ("association.py", [], ["--quick"]),
-    "following": ("following.py", [], ["--episodes", "8", "--duration", "10"]),
-    "following_sensors": ("following_sensors.py", [], ["--episodes", "8", "--repeats", "2"]),
-    "humanoid": ("humanoid.py", [], ["--episodes", "2"]),
+    "filters": ("filters.py", []),
+    "particle": ("particle.py", []),
+    "association": ("association.py", []),
+    "following": ("following.py", []),
+    "following_sensors": ("following_sensors.py", []),
+    "humanoid": ("humanoid.py", []),
 }
 GRADCHECKS = {
-    "following_gradcheck": ("following.py", ["--gradcheck"],
-                            ["--gradcheck", "--episodes", "2", "--duration", "2"]),
-    "humanoid_gradcheck": ("humanoid.py", ["--gradcheck"],
-                           ["--gradcheck", "--episodes", "2", "--frames", "10"]),
+    "following_gradcheck": ("following.py", ["--gradcheck"]),
+    "humanoid_gradcheck": ("humanoid.py", ["--gradcheck"]),
 }
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="smoke-test sizes")
+    p = _common.parser(__doc__, gradcheck="also run the gradient checks",
+                       out_help="log directory (default benchmarks/results/raw/<UTC date>)")
     p.add_argument("--only", default="", help="comma-separated names (default: all): "
                    + ", ".join([*BENCHMARKS, *GRADCHECKS]))
-    p.add_argument("--gradcheck", action="store_true", help="also run the gradient checks")
-    p.add_argument("--out", type=Path, default=None,
-                   help="log directory (default benchmarks/results/<UTC date>)")
     return p.parse_args(argv)
 
 
@@ -70,11 +68,14 @@ def selected(args) -> dict:
 def main(argv=None) -> int:
     args = parse_args(argv)
     table = selected(args)
-    out = args.out or HERE / "results" / dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d")
+    out = args.out or (HERE / "results" / "raw"
+                       / dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d"))
     out.mkdir(parents=True, exist_ok=True)
+    shared = [*(["--quick"] if args.quick else []),
+              *(["--seed", str(args.seed)] if args.seed else [])]
     summary = []
-    for i, (name, (script, full, quick)) in enumerate(table.items(), 1):
-        cmd = [sys.executable, str(HERE / script), *(quick if args.quick else full)]
+    for i, (name, (script, extra)) in enumerate(table.items(), 1):
+        cmd = [sys.executable, str(HERE / script), *extra, *shared]
         print(f"\n=== [{i}/{len(table)}] {name}: {' '.join(cmd[1:])}", flush=True)
         t0 = time.perf_counter()
         with open(out / f"{name}.log", "w") as log:
@@ -86,9 +87,8 @@ def main(argv=None) -> int:
             code = proc.wait()
         summary.append((name, code, time.perf_counter() - t0))
     print(f"\nlogs in {out}")
-    print(f"{'benchmark':<22}{'exit':>6}{'wall s':>10}")
-    for name, code, secs in summary:
-        print(f"{name:<22}{code:>6}{secs:>10.0f}")
+    print(_common.table(["benchmark"], [_common.Row((name,), {"exit": code, "wall s": secs})
+                                        for name, code, secs in summary], ratio=None))
     counted = [code for name, code, _ in summary if not (args.quick and name in GRADCHECKS)]
     if args.quick and any(name in GRADCHECKS for name, _, _ in summary):
         print("(--quick: the gradient checks' verdicts are not counted; see the docstring)")

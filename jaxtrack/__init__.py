@@ -7,12 +7,13 @@ tuning. ``import jaxtrack`` never imports MuJoCo.
 
 import importlib
 
-from jaxtrack import (angles, association, control, filters, metrics, models, montecarlo,
-                      perception, tracking, tuning)
+from jaxtrack import (angles, association, control, filters, geometry, metrics, models,
+                      montecarlo, perception, tracking, tuning)
 
 __version__ = "0.1.0"
 
-__all__ = ["angles", "association", "control", "filters", "metrics", "models", "montecarlo",
+__all__ = ["angles", "association", "control", "filters", "geometry", "metrics", "models",
+           "montecarlo",
            "perception", "plotting", "tracking", "tuning", "__version__"]
 
 

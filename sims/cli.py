@@ -1,11 +1,12 @@
 """Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach``,
 ``jaxtrack run person-following``, ``jaxtrack track`` and ``jaxtrack evaluate``.
 
-The console command lives in `sims` so that importing `jaxtrack` never imports MuJoCo; ``demo``
-dispatches to `jaxtrack.demo.run`, ``run humanoid-reach`` to `run_humanoid_reach`, ``run
-person-following`` to `sims.following.report.run_person_following`, ``track`` (leg detection and
-a tracker replayed on a ROS bag) to `sims.following.replay.track_bag`, ``evaluate`` (CLEAR MOT of
-a tracks file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`.
+The console command lives in `sims`, the top layer, so that importing `jaxtrack` never imports
+MuJoCo; only the ``run`` commands import it. ``demo`` dispatches to `jaxtrack.demo.run`, ``run
+humanoid-reach`` to `run_humanoid_reach`, ``run person-following`` to
+`sims.following.report.run_person_following`, ``track`` (the sensing step and a user estimator
+replayed on a ROS bag) to `jaxtrack.io.replay.track_bag`, ``evaluate`` (CLEAR MOT of a tracks
+file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`.
 """
 
 from __future__ import annotations
@@ -27,6 +28,9 @@ TASK_NAMES = tuple(f"{p.split()[0]} {h:+d}" for p in _PATHS for h in _HEADINGS)
 
 
 def main(argv: list[str] | None = None) -> int:
+    from jaxtrack.tracking import user
+
+    estimators = tuple(user.CONFIGS)
     parser = argparse.ArgumentParser(prog="jaxtrack", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="KF / EKF / UKF over many vmapped episodes: accuracy and "
@@ -62,8 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
-    follow.add_argument("--estimator", choices=("pf", "gnn", "jpda", "nnjpda", "kf", "truth"),
-                        default="pf")
+    follow.add_argument("--estimator", choices=estimators, default="pf")
     follow.add_argument("--follower", choices=("A", "B"), default="A",
                         help="follower point: A = (1.5, 0), B = (1, 1) m in the robot frame")
     follow.add_argument("--people", type=int, default=4, help="distractors besides the user")
@@ -86,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
                      help="geometry_msgs/PoseArray or people_msgs/PositionMeasurementArray "
                           "topic (robot frame)")
     trk.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic")
-    trk.add_argument("--estimator", choices=("gnn", "jpda", "nnjpda", "pf", "kf"),
+    trk.add_argument("--estimator", choices=tuple(e for e in estimators if e != "truth"),
                      default="gnn")
     trk.add_argument("--chunk", type=int, default=64, help="frames per compiled scan")
     trk.add_argument("--max-detections", type=int, default=16)
@@ -110,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.bag.exists():
             parser.error(f"--bag {args.bag} does not exist")
         from jaxtrack.io import bags
-        from sims.following.replay import track_bag
+        from jaxtrack.io.replay import track_bag
 
         try:
             track_bag(args.bag, args.laser_topic, args.out,
@@ -191,10 +194,14 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     from jaxtrack import montecarlo
     from sims.humanoid import episode, scene
 
+    from jaxtrack.tracking import humanoid
+
     sc = scene.build(*resolution)
-    cfg = episode.EpisodeConfig(sc, tracker=tracker, num_particles=particles,
-                                num_frames=frames, turn_prediction=turn_prediction,
-                                heading_gain=heading_gain)
+    heading = humanoid.HeadingConfig(gain=heading_gain, turn_prediction=turn_prediction)
+    trackers = {"pf": humanoid.DepthPFConfig(num_particles=particles, heading=heading),
+                "pf3": humanoid.DepthPF3Config(num_particles=particles),
+                "ukf": humanoid.CentroidUKFConfig(heading=heading)}
+    cfg = episode.EpisodeConfig(sc, tracker=trackers[tracker], num_frames=frames)
     episode_fn = episode.make_episode(cfg)
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)

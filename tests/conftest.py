@@ -7,7 +7,20 @@ float32 tests cast their inputs explicitly.
 from pathlib import Path
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+@pytest.fixture(scope="session")
+def following_recording():
+    """A 3 s simulated person-following recording (4 people) and its bag records:
+    ``(scene, Recording, (LaserScans, Odometry, PersonDetections))``, shared by the recording and
+    replay tests (one compilation)."""
+    from sims.following import recording, scene
+
+    sc = scene.build(num_people=4)
+    rec = recording.record(jax.random.PRNGKey(2), sc, distractors=3, duration=3.0)
+    return sc, rec, recording.to_records(rec)

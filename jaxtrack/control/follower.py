@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
 
 Array = jax.Array
@@ -65,7 +65,6 @@ POINT_B = (1.0, 1.0)
 """Follower point B of the seed's experiments: the user at 45 deg front-left (section V-A)."""
 
 _POINTS = {"A": POINT_A, "B": POINT_B}
-_FRAMES = ("world", "robot")
 _STOP_MODES = ("halt", "rotate", "none")
 
 
@@ -170,61 +169,60 @@ def follower_point(robot_pose: Array, point) -> Array:
     _checks.check_shape("robot_pose", robot_pose, (3,), "(x, y, theta)")
     _checks.check_shape("point", point, (2,), "follower point")
     robot_pose = jnp.asarray(robot_pose)
-    return robot_pose[:2] + _rotate(robot_pose[2], jnp.asarray(point, robot_pose.dtype))
+    return geometry.from_frame(robot_pose, jnp.asarray(point, robot_pose.dtype))
 
 
-def error(robot_pose: Array, person_pos: Array, point, frame: str = "world") -> Array:
+def error(robot_pose: Array, person_pos: Array, point) -> Array:
     r"""The robot-frame error :math:`\tilde p = R(\theta_m)^T (x_f - x_r)` [2] (eqs. 6-7).
 
     Args:
       robot_pose: [3] (x, y, theta) in the world frame.
-      person_pos: [2] the person :math:`x_r`: world coordinates if ``frame == "world"``, robot
-        coordinates (relative to the robot) if ``frame == "robot"``.
+      person_pos: [2] the person :math:`x_r` in the world frame.
       point: [2] :math:`P_{fm}`.
-      frame: ``"world"`` or ``"robot"``.
+
+    In the robot frame, with the person at :math:`p_r = R(\theta_m)^T (x_r - x_m)`, the error
+    is :math:`P_{fm} - p_r`, the form `control` uses.
 
     Example:
       >>> error(jnp.zeros(3), jnp.array([1.5, 0.0]), POINT_A)  # (0, 0)
     """
-    _check_frame(frame)
     _checks.check_shape("robot_pose", robot_pose, (3,), "(x, y, theta)")
     _checks.check_shape("person_pos", person_pos, (2,), "(x, y)")
     _checks.check_shape("point", point, (2,), "follower point")
     dtype = jnp.result_type(jnp.asarray(robot_pose).dtype, jnp.asarray(person_pos).dtype,
                             jnp.float32)
     robot_pose = jnp.asarray(robot_pose, dtype)
-    return _error(robot_pose, jnp.asarray(person_pos, dtype), jnp.asarray(point, dtype), frame)
+    rel = geometry.to_frame(robot_pose, jnp.asarray(person_pos, dtype))
+    return jnp.asarray(point, dtype) - rel
 
 
-def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Array | None,
+def control(params: Params, person_pos: Array, person_vel: Array | None,
             prev_u: Array | None, dt, obstacles: Array | None = None,
-            obstacle_mask: Array | None = None, *, frame: str = "world",
-            stop_mode: str = "halt", singular_eps=1e-2, reverse: bool = True) -> Array:
-    r"""Seed 004's follower law (eq. 9) with limits and a safety stop.
+            obstacle_mask: Array | None = None, *, stop_mode: str = "halt", singular_eps=1e-2,
+            reverse: bool = True) -> Array:
+    r"""Seed 004's follower law (eq. 9) with limits and a safety stop, in the robot frame.
 
-    :math:`u^* = -M^{-1}[K \tilde p - R(\theta_m)^T \dot x_r]`; for a robot that does not
-    drive backwards (``reverse=False``), a law asking for :math:`v < 0` gets :math:`v = 0` and
-    a turn on the spot toward the person instead: :math:`\omega^*` itself while the person is
-    in front of the robot's axle, :math:`k_2 \beta` (:math:`\beta` the person's bearing) when
-    behind it, where :math:`\omega^*` vanishes for a person straight behind. Then scaled into
+    :math:`u^* = -M^{-1}[K \tilde p - R(\theta_m)^T \dot x_r]` with :math:`\tilde p = P_{fm} -
+    p_r`, :math:`p_r` the person relative to the robot; for a robot that does not drive
+    backwards (``reverse=False``), a law asking for :math:`v < 0` gets :math:`v = 0` and a turn
+    on the spot toward the person instead: :math:`\omega^*` itself while the person is in front
+    of the robot's axle, :math:`k_2 \beta` (:math:`\beta` the person's bearing) when behind it,
+    where :math:`\omega^*` vanishes for a person straight behind. Then scaled into
     :math:`|v| \le v_{max}, |\omega| \le \omega_{max}`, then (if ``prev_u`` is given) its change
-    scaled into :math:`|\Delta v| \le a_{max} dt, |\Delta \omega| \le \alpha_{max} dt`, then the
-    safety stop. Inside traced code a non-finite input gives ``u = 0`` (at the boundary, with
+    scaled into :math:`|\Delta v| \le a_{max} dt, |\Delta \omega| \le \alpha_{max} dt`, then
+    the safety stop. Inside traced code a non-finite input gives ``u = 0`` (at the boundary, with
     concrete inputs, it raises).
 
     Args:
       params: `Params`.
-      robot_pose: [3] robot (x, y, theta) in the world frame.
-      person_pos: [2] person position (world, or relative to the robot in its frame if
-        ``frame == "robot"``).
-      person_vel: [2] person velocity :math:`\dot x_r` (world frame; with ``frame == "robot"``,
-        the world velocity expressed in robot axes, :math:`R^T \dot x_r`), or None for a static
-        person.
+      person_pos: [2] :math:`p_r`, the person relative to the robot, in its frame (a world
+        position converts with `jaxtrack.geometry.to_frame`).
+      person_vel: [2] the person's world velocity in robot axes, :math:`R(\theta_m)^T \dot x_r`
+        (`jaxtrack.geometry.rotate` by minus the heading), or None for a static person.
       prev_u: [2] previous command (v, omega) for the acceleration limits, or None (no limit).
       dt: control period (s), used by the acceleration limits.
-      obstacles: optional [Q, 2] points (laser returns, tracked people) in the same frame as
-        ``person_pos``; obstacle_mask: [Q] bool, which rows are real (default all).
-      frame: ``"world"`` or ``"robot"``.
+      obstacles: optional [Q, 2] points (laser returns, tracked people) in the robot frame;
+        obstacle_mask: [Q] bool, which rows are real (default all).
       stop_mode: ``"halt"`` (u = 0), ``"rotate"`` (v = 0, keep omega) or ``"none"``.
       singular_eps: :math:`\epsilon` of the regularised :math:`1 / P_{fm,1}` (m).
       reverse: whether the robot may drive backwards. With ``False`` the backward speed is
@@ -236,16 +234,12 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
 
     Example:
       >>> params = Params.create(point="A")
-      >>> u = control(params, jnp.zeros(3), jnp.array([2.0, 0.5]), jnp.array([1.0, 0.0]),
-      ...             None, 0.05)
+      >>> u = control(params, jnp.array([2.0, 0.5]), jnp.array([1.0, 0.0]), None, 0.05)
     """
-    _check_frame(frame)
     _checks.check_options("stop_mode", stop_mode, _STOP_MODES)
     if not isinstance(params, Params):
         raise TypeError(f"params must be a follower.Params; got {type(params).__name__}")
-    _checks.check_shape("robot_pose", robot_pose, (3,), "(x, y, theta)")
-    _checks.check_shape("person_pos", person_pos, (2,), "(x, y)")
-    _checks.check_finite("robot_pose", robot_pose)
+    _checks.check_shape("person_pos", person_pos, (2,), "(x, y) relative to the robot")
     _checks.check_finite("person_pos", person_pos)
     if person_vel is not None:
         _checks.check_shape("person_vel", person_vel, (2,), "(vx, vy)")
@@ -261,21 +255,17 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
     if _checks.is_concrete(singular_eps) and not float(singular_eps) > 0:
         raise ValueError(f"singular_eps must be > 0; got {singular_eps}")
 
-    dtype = jnp.result_type(jnp.asarray(robot_pose).dtype, jnp.asarray(person_pos).dtype,
-                            jnp.float32)
-    robot_pose = jnp.asarray(robot_pose, dtype)
+    dtype = jnp.result_type(jnp.asarray(person_pos).dtype, jnp.float32)
     person_pos = jnp.asarray(person_pos, dtype)
     person_vel = (jnp.zeros(2, dtype) if person_vel is None
                   else jnp.asarray(person_vel, dtype))
-    valid = (jnp.all(jnp.isfinite(robot_pose)) & jnp.all(jnp.isfinite(person_pos))
-             & jnp.all(jnp.isfinite(person_vel)))
-    robot_pose = jnp.where(valid, robot_pose, 0.0)
+    valid = jnp.all(jnp.isfinite(person_pos)) & jnp.all(jnp.isfinite(person_vel))
     person_pos = jnp.where(valid, person_pos, 0.0)
     person_vel = jnp.where(valid, person_vel, 0.0)
 
-    u = _law(params, robot_pose, person_pos, person_vel, frame, singular_eps)
+    u = _law(params, person_pos, person_vel, singular_eps)
     if not reverse:
-        u = _forward_only(params, u, robot_pose, person_pos, frame)
+        u = _forward_only(params, u, person_pos)
     u = _limit_velocity(u, params)
     if prev_u is not None:
         prev = jnp.asarray(prev_u, dtype)
@@ -283,30 +273,26 @@ def control(params: Params, robot_pose: Array, person_pos: Array, person_vel: Ar
         u = _limit_acceleration(u, prev, params, jnp.asarray(dt, dtype))
         u = _limit_velocity(u, params)
     if obstacles is not None and stop_mode != "none":
-        stop = _too_close(robot_pose, jnp.asarray(obstacles, dtype), obstacle_mask,
-                          params.stop_distance, frame)
+        stop = _too_close(jnp.asarray(obstacles, dtype), obstacle_mask, params.stop_distance)
         keep = jnp.array([0.0, 1.0], dtype) if stop_mode == "rotate" else jnp.zeros(2, dtype)
         u = jnp.where(stop, u * keep, u)
     return jnp.where(valid, u, 0.0).astype(dtype)
 
 
-def safety_stop(robot_pose: Array, obstacles: Array, obstacle_mask: Array | None = None,
-                stop_distance=0.3, frame: str = "world") -> Array:
+def safety_stop(obstacles: Array, obstacle_mask: Array | None = None,
+                stop_distance=0.3) -> Array:
     """Whether any masked obstacle point is within ``stop_distance`` of the robot (bool).
 
     Args:
-      robot_pose: [3]. obstacles: [Q, 2] (world frame, or robot frame if ``frame == "robot"``).
-      obstacle_mask: [Q] bool (default all). stop_distance: radius (m).
+      obstacles: [Q, 2] points in the robot frame. obstacle_mask: [Q] bool (default all).
+      stop_distance: radius (m).
 
     Example:
-      >>> safety_stop(jnp.zeros(3), jnp.array([[0.2, 0.1]]))  # True
+      >>> safety_stop(jnp.array([[0.2, 0.1]]))  # True
     """
-    _check_frame(frame)
-    _checks.check_shape("robot_pose", robot_pose, (3,), "(x, y, theta)")
     obstacles, obstacle_mask = _check_obstacles(obstacles, obstacle_mask)
-    robot_pose = jnp.asarray(robot_pose)
-    return _too_close(robot_pose, jnp.asarray(obstacles, robot_pose.dtype), obstacle_mask,
-                      stop_distance, frame)
+    obstacles = jnp.asarray(obstacles)
+    return _too_close(obstacles, obstacle_mask, stop_distance)
 
 
 def unicycle_step(pose: Array, u: Array, dt) -> Array:
@@ -326,7 +312,7 @@ def unicycle_step(pose: Array, u: Array, dt) -> Array:
 
 
 def follow(params: Params, robot_pose0: Array, person_pos: Array, person_vel: Array, dt,
-           *, frame: str = "world", singular_eps=1e-2) -> FollowResult:
+           *, singular_eps=1e-2) -> FollowResult:
     r"""Closed loop of `control` with ideal unicycle kinematics (`unicycle_step`), a `lax.scan`.
 
     The reference loop for tests and gain tuning: no estimator, no obstacles; the acceleration
@@ -347,8 +333,6 @@ def follow(params: Params, robot_pose0: Array, person_pos: Array, person_vel: Ar
       >>> res = follow(Params.create(), jnp.zeros(3), walk, jnp.tile(jnp.array([1.0, 0.0]),
       ...              (100, 1)), 0.05)
     """
-    if frame != "world":
-        raise ValueError(f"follow simulates in the world frame; got frame={frame!r}")
     _checks.check_shape("robot_pose0", robot_pose0, (3,), "(x, y, theta)")
     _checks.check_shape("person_pos", person_pos, (None, 2), "[T, 2] positions")
     _checks.check_shape("person_vel", person_vel, (np.shape(person_pos)[0], 2),
@@ -366,8 +350,10 @@ def follow(params: Params, robot_pose0: Array, person_pos: Array, person_vel: Ar
     def body(carry, xs):
         pose, prev = carry
         p, v = xs
-        err = _error(pose, p, jnp.asarray(params.point, dtype), "world")
-        u = control(params, pose, p, v, prev, dt, singular_eps=singular_eps)
+        rel = geometry.to_frame(pose, p)
+        err = jnp.asarray(params.point, dtype) - rel
+        u = control(params, rel, geometry.rotate(-pose[2], v), prev, dt,
+                    singular_eps=singular_eps)
         nxt = _unicycle(pose, u, dt)
         return (nxt, u), (nxt, u, err)
 
@@ -380,24 +366,12 @@ def follow(params: Params, robot_pose0: Array, person_pos: Array, person_vel: Ar
 # Private helpers
 
 
-def _rotate(theta, v):
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
-
-
-def _error(robot_pose, person_pos, point, frame):
-    if frame == "robot":
-        return point - person_pos
-    return point - _rotate(-robot_pose[2], person_pos - robot_pose[:2])
-
-
-def _law(params, robot_pose, person_pos, person_vel, frame, singular_eps):
-    dtype = robot_pose.dtype
+def _law(params, person_pos, person_vel, singular_eps):
+    dtype = person_pos.dtype
     k = gains(params).astype(dtype)
     point = jnp.asarray(params.point, dtype)
-    p_tilde = _error(robot_pose, person_pos, point, frame)
-    vel_robot = person_vel if frame == "robot" else _rotate(-robot_pose[2], person_vel)
-    b = k * p_tilde - vel_robot
+    p_tilde = point - person_pos
+    b = k * p_tilde - person_vel
     p1, p2 = point[0], point[1]
     eps2 = jnp.asarray(singular_eps, dtype) ** 2
     inv_p1 = p1 / (p1 * p1 + eps2 * jnp.exp(-p1 * p1 / eps2))
@@ -407,12 +381,11 @@ def _law(params, robot_pose, person_pos, person_vel, frame, singular_eps):
     return jnp.stack([v, omega])
 
 
-def _forward_only(params, u, robot_pose, person_pos, frame):
+def _forward_only(params, u, person_pos):
     """``v < 0`` of the law replaced by a turn on the spot (see `control`)."""
-    rel = person_pos if frame == "robot" else _rotate(-robot_pose[2], person_pos - robot_pose[:2])
-    bearing = jnp.arctan2(rel[1], rel[0])
+    bearing = jnp.arctan2(person_pos[1], person_pos[0])
     k2 = gains(params)[1].astype(u.dtype)
-    omega = jnp.where(rel[0] >= 0.0, u[1], k2 * bearing)
+    omega = jnp.where(person_pos[0] >= 0.0, u[1], k2 * bearing)
     back = u[0] < 0.0
     return jnp.stack([jnp.maximum(u[0], 0.0), jnp.where(back, omega, u[1])])
 
@@ -438,11 +411,10 @@ def _limit_acceleration(u, prev, params, dt):
     return prev + du * s
 
 
-def _too_close(robot_pose, obstacles, obstacle_mask, stop_distance, frame):
-    rel = obstacles if frame == "robot" else obstacles - robot_pose[:2]
-    d2 = jnp.sum(rel * rel, -1)
+def _too_close(obstacles, obstacle_mask, stop_distance):
+    d2 = jnp.sum(obstacles * obstacles, -1)
     ok = obstacle_mask & jnp.all(jnp.isfinite(obstacles), -1)
-    r = jnp.asarray(stop_distance, robot_pose.dtype)
+    r = jnp.asarray(stop_distance, obstacles.dtype)
     return jnp.any(ok & (jnp.where(ok, d2, jnp.inf) <= r * r))
 
 
@@ -460,11 +432,6 @@ def _unicycle(pose, u, dt):
     c, s = jnp.cos(th), jnp.sin(th)
     return jnp.stack([pose[0] + c * fwd - s * left, pose[1] + s * fwd + c * left,
                       wrap(th + a)]).astype(pose.dtype)
-
-
-def _check_frame(frame):
-    if frame not in _FRAMES:
-        raise ValueError(f"unknown frame {frame!r}; expected one of {list(_FRAMES)}")
 
 
 def _check_point(point):

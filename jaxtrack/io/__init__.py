@@ -7,8 +7,10 @@
   recorded trajectories, so that trackers run on real human motion.
 - `jaxtrack.io.bags`: ROS 1 and ROS 2 bags (laser scans, depth images, odometry, person
   detections) through the pure-Python ``rosbags`` package, installed by the ``ros`` extra.
+- `jaxtrack.io.replay`: the sensing step and a user estimator replayed on recorded scans
+  (``jaxtrack track``), without MuJoCo.
 
 Import the submodule you need: ``from jaxtrack.io import trajectories``.
 """
 
-__all__ = ["bags", "synthetic", "trajectories"]
+__all__ = ["bags", "replay", "synthetic", "trajectories"]

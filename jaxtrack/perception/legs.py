@@ -160,13 +160,22 @@ class People(NamedTuple):
 
 class Detections(NamedTuple):
     """Output of `detect`: people, the leg candidates (for the next frame's motion cue) and the
-    intermediate results."""
+    intermediate results.
+
+    Attributes:
+      people: `People`. legs_xy: [S, 2] leg candidates' positions; legs_mask: [S].
+      segments: `Segments`; features: `SegmentFeatures`.
+      points: [B, 2] the scan's return points (sensor frame, 0 where invalid); valid: [B]
+        returns within ``(min_range, max_range)``, e.g. obstacle points for a safety layer.
+    """
 
     people: People
     legs_xy: Array
     legs_mask: Array
     segments: Segments
     features: SegmentFeatures
+    points: Array
+    valid: Array
 
 
 # ---------------------------------------------------------------------------------------------
@@ -300,7 +309,8 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         the current sensor frame when the robot moved) for the motion cue.
 
     Returns:
-      `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features).
+      `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features, points [B, 2],
+      valid [B]).
 
     Example:
       >>> det = detect(ranges, angles)
@@ -316,7 +326,7 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
     feats = _features(xy, segs)
     legs = leg_candidates(feats, params)
     people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)
-    return Detections(people, feats.position, legs, segs, feats)
+    return Detections(people, feats.position, legs, segs, feats, xy, valid)
 
 
 def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(), *,

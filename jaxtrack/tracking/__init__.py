@@ -1,11 +1,16 @@
-"""Multi-target tracking: the fixed-capacity tracker, the people particle filter, particle
-clustering, appearance models."""
+"""Tracking: the estimator protocol (`estimator`), the fixed-capacity multi-target tracker, the
+people particle filter, particle clustering, appearance models, colour re-identification, track
+stitching, and the estimators built on them: of a followed user (`user`) and of a humanoid under
+a ceiling camera (`humanoid`)."""
 
-from jaxtrack.tracking import appearance, clustering, people_pf
+from jaxtrack.tracking import (appearance, clustering, estimator, humanoid, people_pf, reid,
+                               stitching, user)
+from jaxtrack.tracking.estimator import Estimator
 from jaxtrack.tracking.tracker import (CONFIRMED, FREE, TENTATIVE, Detections, TrackerConfig,
                                        TrackerParams, Tracks, init, is_walking, make_detections,
                                        run, step)
 
-__all__ = ["appearance", "clustering", "people_pf", "TrackerConfig", "TrackerParams", "Tracks", "Detections",
+__all__ = ["appearance", "clustering", "estimator", "humanoid", "people_pf", "reid", "stitching",
+           "user", "Estimator", "TrackerConfig", "TrackerParams", "Tracks", "Detections",
            "init", "step", "run", "is_walking", "make_detections", "FREE", "TENTATIVE",
            "CONFIRMED"]

@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import _checks
+from jaxtrack.perception import sensing
 
 Array = jax.Array
 
@@ -121,11 +122,9 @@ def beam_angles(cfg: LaserConfig = LaserConfig(), dtype=None) -> Array:
 
 
 def laser_pose(robot_pose: Array, cfg: LaserConfig = LaserConfig()) -> Array:
-    """World pose (x, y, theta) of the laser on a robot at ``robot_pose`` [..., 3]."""
-    x, y, th = robot_pose[..., 0], robot_pose[..., 1], robot_pose[..., 2]
-    mx, my = cfg.mount
-    c, s = jnp.cos(th), jnp.sin(th)
-    return jnp.stack([x + c * mx - s * my, y + s * mx + c * my, th], -1)
+    """World pose (x, y, theta) [3] of the laser on a robot at ``robot_pose`` [3]
+    (`jaxtrack.perception.sensing.sensor_pose` at the mount)."""
+    return sensing.sensor_pose(jnp.asarray(robot_pose), cfg.mount)
 
 
 def capsule_sections(p0: Array, p1: Array, radius: Array, height, *,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_person_following", "metrics_table"]
+__all__ = ["run_person_following", "metrics_table", "estimator_config"]
 
 _ROWS = (("following_rms", "following RMS error [m]", "{:.3f}"),
          ("lost_fraction", "user lost [% of time]", "{:.2%}"),
@@ -37,6 +37,31 @@ def metrics_table(metrics: dict, title: str = "") -> str:
     return "\n".join(lines)
 
 
+def estimator_config(name: str, sensors: str = "both", particles: int = 256,
+                     appearance: bool = False):
+    """The user-estimator configuration the command line means by ``name``
+    (`jaxtrack.tracking.user.CONFIGS`), with its sensors, particles (``"pf"``) and colour
+    re-identification (the multi-target estimators).
+
+    Example:
+      >>> estimator_config("jpda", appearance=True)
+    """
+    import dataclasses
+
+    from jaxtrack.tracking import user
+
+    user.build(name)  # a clear error for an unknown name
+    config = user.with_sensors(user.CONFIGS[name], sensors)
+    if isinstance(config, user.ParticleConfig):
+        config = dataclasses.replace(config, pf=dataclasses.replace(config.pf,
+                                                                    num_particles=particles))
+    if appearance:
+        if not isinstance(config, user.MultiTargetConfig):
+            raise ValueError(f"appearance applies to the multi-target estimators, not {name!r}")
+        config = dataclasses.replace(config, appearance=True)
+    return config
+
+
 def run_person_following(episodes: int = 256, estimator: str = "pf", follower: str = "A",
                          people: int = 4, out: Path | None = None, seed: int = 0,
                          duration: float = 60.0, sensors: str = "both", particles: int = 256,
@@ -50,12 +75,11 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
 
     from jaxtrack import montecarlo
     from sims.following import episode as ep
-    from sims.following import estimators, scene
+    from sims.following import scene
 
     sc = scene.build(num_people=max(8, people + 1))
-    ecfg = estimators.EstimatorConfig(kind=estimator, sensors=sensors, num_particles=particles,
-                                      appearance=appearance)
-    cfg = ep.EpisodeConfig(sc, ecfg, distractors=people, duration=duration)
+    cfg = ep.EpisodeConfig(sc, estimator_config(estimator, sensors, particles, appearance),
+                           distractors=people, duration=duration)
     params = ep.make_params(cfg, point=follower)
     episode_fn = ep.make_episode(cfg)
     key = jax.random.PRNGKey(seed)
@@ -90,10 +114,11 @@ def write_plots(out: Path, cfg, params, key, num: int = 1) -> None:
     import matplotlib.pyplot as plt
 
     from jaxtrack import plotting
+    from jaxtrack.tracking import user
     from sims.following import episode as ep
 
     out.mkdir(parents=True, exist_ok=True)
-    frames, _ = jax.jit(ep.make_rollout(cfg))(jax.random.split(key, 1)[0], params)
+    frames = jax.jit(ep.make_rollout(cfg))(jax.random.split(key, 1)[0], params)
     f = jax.tree_util.tree_map(np.asarray, frames)
     t = np.arange(f.robot.shape[0]) * cfg.control_dt
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -110,7 +135,7 @@ def write_plots(out: Path, cfg, params, key, num: int = 1) -> None:
     ax.plot(f.user_estimate[:, 0], f.user_estimate[:, 1], "C2:", lw=1, label="user estimate")
     ax.set_aspect("equal")
     ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"person following ({cfg.estimator.kind}): top view")
+    ax.set_title(f"person following ({user.build(cfg.estimator).name}): top view")
     fig.savefig(out / "top_view.png", dpi=110)
     fig, ax = plt.subplots(figsize=(8, 3))
     ax.plot(t, f.follow_error, label="|follower point - user|")
@@ -121,7 +146,7 @@ def write_plots(out: Path, cfg, params, key, num: int = 1) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "following_error.png", dpi=110)
-    if cfg.estimator.kind in ("gnn", "jpda", "nnjpda"):
+    if cfg.multi_target:
         matched = _matches(f)
         fig = plotting.mot_timeline(matched, f.visible, dt=cfg.control_dt,
                                     title="which track followed which person")

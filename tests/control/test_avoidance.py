@@ -177,8 +177,8 @@ def test_free_space_returns_desired_bit_identical_with_identity_gradient(dtype):
     assert float(info.clearance) == pytest.approx(4.7, abs=1e-5)
 
 
-follower_control = jax.jit(lambda fp, person, prev: follower.control(
-    fp, jnp.zeros(3), person, None, prev, 0.1, frame="robot"))
+follower_control = jax.jit(lambda fp, person, prev: follower.control(fp, person, None, prev,
+                                                                     0.1))
 
 
 def test_follower_command_passes_unchanged_in_free_space():
@@ -491,7 +491,7 @@ def following_loss(log_k1, points, mask, with_layer):
         c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
         rot = jnp.array([[c, s], [-s, c]])
         rel, vel = rot @ (person - pose[:2]), rot @ jnp.array([0.8, 0.3])
-        u = follower.control(fp, jnp.zeros(3), rel, vel, prev, 0.1, frame="robot")
+        u = follower.control(fp, rel, vel, prev, 0.1)
         local = (points - pose[:2]) @ rot.T  # world obstacles into the robot frame
         u_sel, info = avoidance.select(ap, u, prev, local, mask)
         u = jnp.where(with_layer, u_sel, u)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from jaxtrack import geometry
 from jaxtrack.control import follower
 
 INF = math.inf
@@ -27,9 +28,19 @@ def free_params(k1=1.0, k2=1.0, point="A", dtype=None):
                                   a_max=INF, alpha_max=INF, dtype=dtype)
 
 
-control = jax.jit(follower.control, static_argnames=("frame", "stop_mode"))
-control_free = jax.jit(lambda p, pose, x, v: follower.control(p, pose, x, v, None, 0.1))
-control_prev = jax.jit(lambda p, pose, x, v, prev, dt: follower.control(p, pose, x, v, prev, dt))
+def world_control(params, pose, person, vel, prev, dt, obstacles=None, obstacle_mask=None,
+                  **kw):
+    """The law (robot frame) for a robot at ``pose`` and a person and obstacles given in the
+    world frame."""
+    rel = geometry.to_frame(pose, person)
+    v = None if vel is None else geometry.rotate(-pose[2], vel)
+    obs = None if obstacles is None else geometry.to_frame(pose, obstacles)
+    return follower.control(params, rel, v, prev, dt, obs, obstacle_mask, **kw)
+
+
+control = jax.jit(world_control, static_argnames=("stop_mode",))
+control_free = jax.jit(lambda p, pose, x, v: world_control(p, pose, x, v, None, 0.1))
+control_prev = jax.jit(lambda p, pose, x, v, prev, dt: world_control(p, pose, x, v, prev, dt))
 follow = jax.jit(follower.follow)
 
 
@@ -42,7 +53,7 @@ def p_tilde(pose, person, point):
 @jax.jit
 def error_rate(params, pose, person, person_vel):
     """(p~, d p~/dt under the commanded u, u) by forward-mode differentiation of eqs. 6-7."""
-    u = follower.control(params, pose, person, person_vel, None, 0.1)
+    u = world_control(params, pose, person, person_vel, None, 0.1)
     pose_dot = jnp.array([u[0] * jnp.cos(pose[2]), u[0] * jnp.sin(pose[2]), u[1]])
     p, p_dot = jax.jvp(lambda a, b: p_tilde(a, b, params.point), (pose, person),
                        (pose_dot, person_vel))
@@ -67,7 +78,7 @@ def test_commanded_error_dynamics_are_eq10(dtype, tol):
 @jax.jit
 def closed_loop_rhs(params, t, pose, person0, person_vel):
     person = person0 + person_vel * t
-    u = follower.control(params, pose, person, person_vel, None, 0.1)
+    u = world_control(params, pose, person, person_vel, None, 0.1)
     return jnp.array([u[0] * jnp.cos(pose[2]), u[0] * jnp.sin(pose[2]), u[1]])
 
 
@@ -178,7 +189,7 @@ def test_limits_hold_and_keep_the_curvature_of_the_law():
 
 
 control_fwd_batch = jax.jit(jax.vmap(
-    lambda p, pose, x, v: follower.control(p, pose, x, v, None, 0.1, reverse=False),
+    lambda p, pose, x, v: world_control(p, pose, x, v, None, 0.1, reverse=False),
     in_axes=(None, 0, 0, 0)))
 
 
@@ -224,7 +235,7 @@ def test_singular_follower_point_raises_when_static_and_is_regularised_when_trac
         follower.Params.create(point=(0.0, 1.0))
     singular = free_params(point="A")._replace(point=jnp.array([0.0, 1.0]))
     with pytest.raises(ValueError, match="P_fm1 = 0"):
-        follower.control(singular, jnp.zeros(3), jnp.array([1.0, 1.0]), None, None, 0.1)
+        follower.control(singular, jnp.array([1.0, 1.0]), None, None, 0.1)
     u = np.asarray(control_free(singular, jnp.zeros(3), jnp.array([1.0, 2.0]), jnp.zeros(2)))
     assert np.all(np.isfinite(u))
     # |omega| <= 0.74 |b_2| / eps with b = K p~ - R^T x_r_dot = (-1, -1), eps = 1 cm
@@ -263,15 +274,16 @@ def test_safety_stop_halts_or_rotates_for_anything_within_30_cm():
     np.testing.assert_allclose(control(params, pose, person, vel, None, 0.1, near, masked), u_go)
     np.testing.assert_allclose(control(params, pose, person, vel, None, 0.1, near,
                                        stop_mode="none"), u_go)
-    assert bool(follower.safety_stop(pose, near)) and not bool(follower.safety_stop(pose, far))
-    # Robot frame: person and obstacles relative to the robot; same command as in the world.
+    assert bool(follower.safety_stop(geometry.to_frame(pose, near)))
+    assert not bool(follower.safety_stop(geometry.to_frame(pose, far)))
+    # The law itself takes the person relative to the robot, in its frame (numpy reference).
     c, s = np.cos(0.7), np.sin(0.7)
     rt = np.array([[c, s], [-s, c]])
     rel_person = jnp.asarray(rt @ (np.asarray(person) - [1.0, 2.0]))
     rel_vel = jnp.asarray(rt @ np.asarray(vel))
-    np.testing.assert_allclose(control(params, pose, rel_person, rel_vel, None, 0.1,
-                                       frame="robot"), u_go, atol=1e-12)
-    assert bool(follower.safety_stop(pose, jnp.array([[0.2, -0.2]]), frame="robot"))
+    np.testing.assert_allclose(follower.control(params, rel_person, rel_vel, None, 0.1), u_go,
+                               atol=1e-12)
+    assert bool(follower.safety_stop(jnp.array([[0.2, -0.2]])))
 
 
 def loss(log_k, dtype=jnp.float64):
@@ -301,7 +313,8 @@ def test_gradients_wrt_gains_match_finite_differences():
 
 def test_non_finite_inputs_inside_jit_give_a_zero_command():
     params = follower.Params.create()
-    u = control(params, jnp.zeros(3), jnp.array([jnp.nan, 1.0]), None, None, 0.1)
+    u = jax.jit(follower.control, static_argnames=('stop_mode',))(
+        params, jnp.array([jnp.nan, 1.0]), None, None, 0.1)
     np.testing.assert_array_equal(u, 0.0)
 
 
@@ -325,26 +338,24 @@ def test_bad_input_raises_clear_errors():
         follower.Params.create(v_max=-1.0)
     with pytest.raises(ValueError, match="point must have shape"):
         follower.Params.create(point=(1.0, 0.0, 0.0))
-    with pytest.raises(ValueError, match="robot_pose must have shape"):
-        follower.control(params, jnp.zeros(2), person, None, None, 0.1)
+    with pytest.raises(ValueError, match="person_pos must have shape"):
+        follower.control(params, jnp.zeros(3), None, None, 0.1)
     with pytest.raises(ValueError, match="person_pos contains NaN"):
-        follower.control(params, pose, jnp.array([np.nan, 0.0]), None, None, 0.1)
+        follower.control(params, jnp.array([np.nan, 0.0]), None, None, 0.1)
     with pytest.raises(ValueError, match="person_vel must have shape"):
-        follower.control(params, pose, person, jnp.zeros(3), None, 0.1)
+        follower.control(params, person, jnp.zeros(3), None, 0.1)
     with pytest.raises(ValueError, match="dt must be > 0"):
-        follower.control(params, pose, person, None, jnp.zeros(2), 0.0)
-    with pytest.raises(ValueError, match="unknown frame"):
-        follower.control(params, pose, person, None, None, 0.1, frame="body")
+        follower.control(params, person, None, jnp.zeros(2), 0.0)
     with pytest.raises(ValueError, match="unknown stop_mode"):
-        follower.control(params, pose, person, None, None, 0.1, stop_mode="brake")
+        follower.control(params, person, None, None, 0.1, stop_mode="brake")
     with pytest.raises(ValueError, match="obstacles must have shape"):
-        follower.control(params, pose, person, None, None, 0.1, jnp.zeros(4))
+        follower.control(params, person, None, None, 0.1, jnp.zeros(4))
     with pytest.raises(ValueError, match="obstacle_mask must have shape"):
-        follower.control(params, pose, person, None, None, 0.1, jnp.zeros((4, 2)),
+        follower.control(params, person, None, None, 0.1, jnp.zeros((4, 2)),
                          jnp.ones(3, bool))
     with pytest.raises(TypeError, match="obstacle_mask must be bool"):
-        follower.control(params, pose, person, None, None, 0.1, jnp.zeros((4, 2)), jnp.ones(4))
+        follower.control(params, person, None, None, 0.1, jnp.zeros((4, 2)), jnp.ones(4))
     with pytest.raises(TypeError, match="follower.Params"):
-        follower.control((1.0, 1.0), pose, person, None, None, 0.1)
+        follower.control((1.0, 1.0), person, None, None, 0.1)
     with pytest.raises(ValueError, match=r"person_vel must have shape \[3, 2\]"):
         follower.follow(params, pose, jnp.zeros((3, 2)), jnp.zeros((4, 2)), 0.1)

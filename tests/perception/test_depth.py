@@ -255,29 +255,6 @@ def test_particle_filter_converges_on_a_standing_robot(pf_frames):
     assert np.all(err[:, -1] < 0.02)
 
 
-def test_tracker_step_recovers_position_and_heading_in_float32():
-    rng = np.random.default_rng(4)
-    truth = np.array([-0.4, 0.9, 2.8])
-    frames = [ref.robot_cloud(rng, truth) for _ in range(10)]
-    pts = np.stack([f[0] for f in frames]).astype(np.float32)
-    masks = np.stack([f[1] for f in frames])
-    state = depth.init_tracker(jax.random.PRNGKey(1),
-                               jnp.asarray(truth[:2] + [0.05, -0.04], jnp.float32),
-                               jnp.float32(truth[2] + 0.25), 300)
-
-    def body(state, inp):
-        key, p, m = inp
-        return depth.track_step(key, state, p, m)
-
-    keys = jax.random.split(jax.random.PRNGKey(2), 10)
-    _, poses = jax.jit(lambda s, k, p, m: jax.lax.scan(body, s, (k, p, m)))(state, keys, pts,
-                                                                              masks)
-    assert poses.dtype == jnp.float32
-    final = np.asarray(poses[-1], np.float64)
-    assert np.linalg.norm(final[:2] - truth[:2]) < 0.02
-    assert abs(ref.wrap(final[2] - truth[2])) < math.radians(3.0)
-
-
 # ---------------------------------------------------------------------------------------------
 # PCA heading
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxtrack.control import pose as control
+from jaxtrack.tracking import humanoid
 from sims.humanoid import episode, gait, scene, sensor
 
 F64 = jnp.float64
@@ -109,8 +110,9 @@ def test_short_closed_loop_gradient_matches_central_differences():
     the same loss (common random numbers) within 25 %; the propagation std's is finite (it is
     two orders smaller here, below the differences' noise). One compiled function: the
     differences use the primal outputs of the JVP at the shifted parameters."""
-    cfg = episode.EpisodeConfig(scene.build(40, 30), num_particles=16, num_frames=8,
-                                max_points=48, smooth=True, dtype=F64)
+    cfg = episode.EpisodeConfig(scene.build(40, 30), humanoid.DepthPFConfig(num_particles=16),
+                                num_frames=8, max_points=48, smooth=humanoid.SmoothConfig(),
+                                dtype=F64)
     run = jax.vmap(episode.make_episode(cfg), (0, None))
     base = episode.make_params([0.4, 0.3, math.pi / 4], dtype=F64)
     keys = jax.random.split(jax.random.PRNGKey(0), 16)

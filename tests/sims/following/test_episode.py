@@ -1,13 +1,17 @@
 """Person-following episode: runs under jit + vmap, its metrics agree with direct recomputation
 from the recorded frames (CLEAR MOT with py-motmetrics), bad configurations are refused."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxtrack.control import behaviour
+from jaxtrack.tracking import user
 from sims.following import episode as ep
-from sims.following import estimators, scene
+from sims.following import scene
 
 DURATION = 3.0
 
@@ -15,16 +19,17 @@ DURATION = 3.0
 @pytest.fixture(scope="module")
 def run():
     sc = scene.build(num_people=4)
-    cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="gnn", capacity=6),
-                           distractors=3, duration=DURATION)
+    gnn = user.MultiTargetConfig(tracker=dataclasses.replace(user.TRACKER, association="gnn",
+                                                             capacity=6))
+    cfg = ep.EpisodeConfig(sc, gnn, distractors=3, duration=DURATION)
     params = ep.make_params(cfg)
     rollout = jax.jit(jax.vmap(ep.make_rollout(cfg), (0, None)))
-    frames, switched = rollout(jax.random.split(jax.random.PRNGKey(3), 2), params)
-    return cfg, params, frames, switched
+    frames = rollout(jax.random.split(jax.random.PRNGKey(3), 2), params)
+    return cfg, params, frames
 
 
 def test_rollout_shapes_and_physics(run):
-    cfg, params, f, _ = run
+    cfg, params, f = run
     T = cfg.num_frames
     assert f.robot.shape == (2, T, 3) and f.people.shape == (2, T, 4, 2)
     for name, leaf in f._asdict().items():
@@ -89,30 +94,23 @@ def test_ground_truth_visibility_is_any_beam_whose_return_is_a_leg():
 
 def test_truth_estimator_hands_the_controller_the_true_user():
     sc = scene.build(num_people=3)
-    cfg = ep.EpisodeConfig(sc, estimators.EstimatorConfig(kind="truth"), distractors=2,
-                           duration=2.0)
+    cfg = ep.EpisodeConfig(sc, user.TruthConfig(), distractors=2, duration=2.0)
     params = ep.make_params(cfg)
-    f, sw = jax.jit(ep.make_rollout(cfg))(jax.random.PRNGKey(5), params)
+    f = jax.jit(ep.make_rollout(cfg))(jax.random.PRNGKey(5), params)
     err = np.linalg.norm(np.asarray(f.user_estimate) - np.asarray(f.people)[:, 0], axis=-1)
     assert err.max() < 1e-4  # through the odometry frame and back, in float32
-    m = ep.summarize(cfg, f, sw)
+    m = ep.summarize(cfg, f)
     assert float(m["lost_fraction"]) == 0.0 and np.isnan(float(m["mota"]))
     assert not np.any(np.asarray(f.hyp_mask))
-    est = estimators.init(jax.random.PRNGKey(0), params.estimator, jnp.zeros(2), jnp.zeros(3))
-    det = estimators.Detected(jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros((1, 2)),
-                              jnp.zeros(1, bool), jnp.zeros((1, 3)))
-    with pytest.raises(ValueError, match="true user"):
-        estimators.update(jax.random.PRNGKey(0), est, det, jnp.zeros(3), 0.0, 0.0,
-                          params.estimator)
 
 
 def test_metrics_match_direct_recomputation(run):
     motmetrics = pytest.importorskip("motmetrics")
-    cfg, params, frames, switched = run
+    cfg, params, frames = run
     for e in range(2):
         f = jax.tree_util.tree_map(lambda x: np.asarray(x[e]), frames)
-        got = jax.jit(lambda fr, sw: ep.summarize(cfg, fr, sw))(
-            jax.tree_util.tree_map(lambda x: x[e], frames), switched[e])
+        got = jax.jit(lambda fr: ep.summarize(cfg, fr))(
+            jax.tree_util.tree_map(lambda x: x[e], frames))
         point = np.asarray(params.follower.point)
         th = f.robot[:, 2]
         fp = f.robot[:, :2] + np.stack([np.cos(th) * point[0] - np.sin(th) * point[1],
@@ -137,6 +135,15 @@ def test_metrics_match_direct_recomputation(run):
         if np.isfinite(ref["motp"].iloc[0]):
             np.testing.assert_allclose(got["motp"], ref["motp"].iloc[0], atol=1e-5)
         assert int(got["mot_switches"]) == int(ref["num_switches"].iloc[0])
+        # User switches: the true person the estimate sits on (within 0.5 m) changes.
+        d = np.linalg.norm(f.people - f.user_estimate[:, None], axis=-1)
+        d = np.where(f.people_mask, d, np.inf)
+        on = np.where(d.min(1) <= ep.LOST_DISTANCE, d.argmin(1), -1)
+        last, switches = 0, 0
+        for o in on:
+            switches += int(o >= 0 and last >= 0 and o != last)
+            last = o if o >= 0 else last
+        assert int(got["user_switches"]) == switches
 
 
 def test_bad_configuration():
@@ -144,11 +151,14 @@ def test_bad_configuration():
     with pytest.raises(ValueError, match="capacity"):
         ep.EpisodeConfig(sc, distractors=4)
     with pytest.raises(ValueError, match="estimator"):
-        estimators.EstimatorConfig(kind="particle")
+        ep.EpisodeConfig(sc, estimator="particle", distractors=1)
+    with pytest.raises(TypeError, match="user-estimator configuration"):
+        ep.EpisodeConfig(sc, estimator=behaviour.FollowingConfig(), distractors=1)
+    assert ep.EpisodeConfig(sc, "nn_jpda", distractors=1).estimator == user.CONFIGS["nn_jpda"]
     with pytest.raises(ValueError, match="route_cell"):
-        ep.EpisodeConfig(sc, distractors=1, route_cell=0.0)
+        ep.EpisodeConfig(sc, distractors=1, behaviour=behaviour.FollowingConfig(route_cell=0.0))
     with pytest.raises(ValueError, match="route_clearance"):
-        ep.EpisodeConfig(sc, distractors=1, route_clearance=-0.1)
+        behaviour.FollowingConfig(route_clearance=-0.1)
 
 
 def test_cli_rejects_bad_arguments(capsys):

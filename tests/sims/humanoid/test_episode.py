@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxtrack.tracking import humanoid
 from sims.humanoid import episode, gait, scene
 
 
@@ -14,7 +15,8 @@ def sc():
 
 
 def test_one_episode_runs_under_jit_and_vmap(sc):
-    cfg = episode.EpisodeConfig(sc, num_particles=16, num_frames=6, max_points=32)
+    cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=16), num_frames=6,
+                                max_points=32)
     run = jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
     params = episode.make_params([0.3, 0.2, 0.5])
     m = run(jax.random.split(jax.random.PRNGKey(0), 3), params)
@@ -27,8 +29,8 @@ def test_one_episode_runs_under_jit_and_vmap(sc):
 
 def test_particle_filter_converges_on_a_standing_robot(sc):
     """A diffuse initial cloud (6 cm std) around a robot that stands at its target."""
-    cfg = episode.EpisodeConfig(sc, num_particles=64, num_frames=12, max_points=48,
-                                init_spread=0.06, gait_params=gait.GaitParams(
+    cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=64, init_spread=0.06),
+                                num_frames=12, max_points=48, gait_params=gait.GaitParams(
                                     stride_noise=0.0, heading_noise=0.0, slip_noise=0.0))
     run = jax.jit(episode.make_episode(cfg))
     params = episode.make_params([0.5, 0.5, 0.0], start=[0.5, 0.5, 0.0])
@@ -43,7 +45,7 @@ def test_pf3_heading_follows_a_quarter_turn(sc):
     """pf3 on a robot turning by 90 deg: the heading particles are driven by the commanded turn
     and folded to the previous estimate's half-circle. (A pure random walk lagged the turn: the
     controller kept turning and the errors reached 80-105 deg in 24 frames.)"""
-    cfg = episode.EpisodeConfig(sc, tracker="pf3", num_particles=32, num_frames=24,
+    cfg = episode.EpisodeConfig(sc, humanoid.DepthPF3Config(num_particles=32), num_frames=24,
                                 max_points=32)
     run = jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
     m = run(jax.random.split(jax.random.PRNGKey(0), 4),
@@ -58,8 +60,9 @@ def test_turn_prediction_removes_the_pca_heading_lag_on_a_turn(sc):
     the commanded turn predicts it."""
     errs = []
     for turn_prediction in (False, True):
-        cfg = episode.EpisodeConfig(sc, num_particles=32, num_frames=24, max_points=32,
-                                    turn_prediction=turn_prediction)
+        heading = humanoid.HeadingConfig(turn_prediction=turn_prediction)
+        cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=32, heading=heading),
+                                    num_frames=24, max_points=32)
         run = jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
         m = run(jax.random.split(jax.random.PRNGKey(0), 4),
                 episode.make_params([0.2, 0.0, np.pi / 2], lambda_theta=0.9))
@@ -70,24 +73,24 @@ def test_turn_prediction_removes_the_pca_heading_lag_on_a_turn(sc):
     assert np.mean(predicted) < 0.7 * np.mean(lagging)
 
 
-def test_traced_temperature_equals_the_configured_one_and_matters(sc):
-    """params.log_temperature overrides EpisodeConfig.temperature as a traced value: one
-    compiled episode reproduces the configured T = 3 run and differs at T = 30."""
-    base = dict(num_particles=16, num_frames=5, max_points=32)
+def test_traced_temperature_is_the_one_source_and_matters(sc):
+    """params.log_temperature is the likelihood's temperature, a traced value: one compiled
+    episode runs the seed's weight (None), T = 3 and T = 30, and the estimates differ."""
+    cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=16), num_frames=5,
+                                max_points=32)
     key = jax.random.PRNGKey(3)
     target = [0.4, 0.1, 0.3]
-    configured = jax.jit(episode.make_episode(episode.EpisodeConfig(sc, temperature=3.0,
-                                                                    **base)))
-    traced = jax.jit(episode.make_episode(episode.EpisodeConfig(sc, **base)))
-    ref = configured(key, episode.make_params(target))
     params = episode.make_params(target, temperature=3.0)
     assert params.log_temperature.dtype == jnp.float32
     np.testing.assert_allclose(np.log(3.0), params.log_temperature, rtol=1e-6)
-    got = traced(key, params)
-    np.testing.assert_allclose(got["estimate"], ref["estimate"], atol=1e-5)
-    other = traced(key, params._replace(log_temperature=jnp.log(jnp.float32(30.0))))
-    assert np.max(np.abs(other["estimate"] - ref["estimate"])) > 1e-3
-    # The tasks' default leaves it to the configuration.
+    assert params.tracker == humanoid.DepthTrackerParams(params.log_position_noise,
+                                                         params.log_temperature)
+    traced = jax.jit(episode.make_episode(cfg))
+    t3 = traced(key, params)["estimate"]
+    t30 = traced(key, params._replace(log_temperature=jnp.log(jnp.float32(30.0))))["estimate"]
+    seed = jax.jit(episode.make_episode(cfg))(key, episode.make_params(target))["estimate"]
+    assert np.max(np.abs(t30 - t3)) > 1e-3 and np.max(np.abs(seed - t3)) > 1e-3
+    # The tasks' default is the seed's weight.
     assert episode.seed_task_params()[0].log_temperature is None
     assert episode.seed_task_params(temperature=2.0)[5].log_temperature is not None
 
@@ -101,10 +104,9 @@ def test_bad_task_input_is_rejected_with_a_clear_message(sc):
         episode.make_params([1.0, 0.0, 0.0], lambda_x=-1.0)
     with pytest.raises(ValueError, match="temperature must be a finite positive number"):
         episode.make_params([1.0, 0.0, 0.0], temperature=0.0)
-    with pytest.raises(ValueError, match="unknown tracker 'kcf'"):
+    with pytest.raises(ValueError, match=r"unknown tracker \['kcf'\]"):
         episode.make_episode(episode.EpisodeConfig(sc, tracker="kcf"))
     with pytest.raises(ValueError, match="sway_frames"):
         episode.make_episode(episode.EpisodeConfig(sc, sway_frames=0))
-    with pytest.raises(ValueError, match="unknown smooth_resampling 'sinkhorn'"):
-        episode.make_episode(episode.EpisodeConfig(sc, smooth=True,
-                                                   smooth_resampling="sinkhorn"))
+    with pytest.raises(ValueError, match=r"unknown smooth resampling \['sinkhorn'\]"):
+        humanoid.SmoothConfig(resampling="sinkhorn")

@@ -1,0 +1,312 @@
+"""User estimators replayed on recorded laser scans (a ROS bag or arrays in memory).
+
+`track` runs, per laser scan, the sensing step of the closed loop
+(`jaxtrack.perception.sensing.sense`: leg detection with the previous frame's legs, laser and
+RGB-D people into the odometry frame, the static-map filter) and one user estimator of
+`jaxtrack.tracking.user`: the same step functions the simulated episode runs, with no controller
+and no MuJoCo. The frames are the laser scans; odometry (the nearest message in time) and
+detections (the nearest message within half a frame) are aligned to them. Everything runs in the
+odometry frame (the identity pose without odometry), in fixed-size chunks: one ``lax.scan`` per
+chunk, compiled once, the last chunk padded with masked frames, the estimator state carried
+from chunk to chunk.
+
+`track_bag` is ``jaxtrack track``: a bag in, ``tracks.csv`` (MOTChallenge layout) and a top
+view out.
+
+Example:
+  >>> laser = bags.read_laser("run.bag", "/scan")
+  >>> tracks = track(laser, bags.read_odometry("run.bag", "/odom"), estimator="jpda")
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxtrack import geometry
+from jaxtrack.io import bags
+from jaxtrack.perception import legs, sensing
+from jaxtrack.tracking import user
+
+Array = jax.Array
+
+__all__ = ["Tracks", "track", "track_bag", "write_top_view"]
+
+
+class Tracks(NamedTuple):
+    """Estimator output in the odometry frame, one row per laser frame.
+
+    Attributes:
+      frames: [T] int32 frame numbers (1, 2, ...); times: [T] seconds.
+      ids: [T, H] int32 track identities (for ``"pf"`` the particle-cluster slot, for ``"kf"``
+        0: neither keeps identities over time); pos: [T, H, 2]; mask: [T, H] confirmed tracks.
+      user: [T, 2] the followed user's estimate; user_found: [T] measured at that frame.
+    """
+
+    frames: np.ndarray
+    times: np.ndarray
+    ids: np.ndarray
+    pos: np.ndarray
+    mask: np.ndarray
+    user: np.ndarray
+    user_found: np.ndarray
+
+
+class _Static(NamedTuple):
+    estimator: object
+    sensing: sensing.SensingConfig
+    dt: float
+
+
+def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
+          detections: bags.PersonDetections | None = None, estimator="gnn", *,
+          chunk: int = 64, key: Array | None = None, user_xy=None, params=None,
+          leg_params: legs.LegParams = legs.LegParams(), laser_mount=(0.0, 0.0),
+          max_segments: int = 48, max_laser_people: int = 8, static_xy=None,
+          static_radius: float = 0.3, dtype=jnp.float32, progress: bool = True,
+          stream=None) -> Tracks:
+    """Run the sensing step and a user estimator over recorded scans, ``chunk`` frames at a time.
+
+    Args:
+      laser: `bags.LaserScans` (T scans; rows with ``valid`` False are skipped).
+      odometry: `bags.Odometry` or None (identity pose: the tracks are in the laser's frame).
+      detections: `bags.PersonDetections` in the robot frame, or None.
+      estimator: a name of `jaxtrack.tracking.user.CONFIGS` ("gnn", "jpda", "nn_jpda", "pf",
+        "kf"; with no detections, its laser-only version) or a user-estimator configuration.
+      chunk: frames per compiled ``lax.scan``.
+      key: PRNG key (particle filter); default ``PRNGKey(0)``.
+      user_xy: [2] the user in the odometry frame at the first frame; default the laser person
+        nearest to the robot in front of it (else 1 m ahead).
+      params: the estimator's parameters (default its ``params`` at the scans' period).
+      leg_params, laser_mount, max_segments, max_laser_people: the leg detector and the laser's
+        (x, y) on the robot (`sensing.SensingConfig`).
+      static_xy: [F, 2] known leg-like fixed objects (table and chair legs) in the odometry
+        frame, from a map: laser people within ``static_radius`` of one are dropped (furniture
+        legs 0.3-0.5 m apart do look like a person's legs).
+      progress: print a progress bar to ``stream`` (stderr).
+
+    Returns:
+      `Tracks` in the odometry frame.
+
+    Example:
+      >>> tracks = track(bags.read_laser("run.bag", "/scan"),
+      ...                bags.read_odometry("run.bag", "/odom"), estimator="jpda")
+    """
+    if isinstance(estimator, str):
+        config = user.CONFIGS.get(estimator)
+        user.build(estimator)  # a clear error for an unknown name
+        if detections is None:
+            config = user.with_sensors(config, "laser")
+    else:
+        config = estimator
+    est = user.build(config)
+    if int(chunk) < 1:
+        raise ValueError(f"chunk must be >= 1; got {chunk}")
+    rows = np.flatnonzero(np.asarray(laser.valid, bool))
+    if rows.size == 0:
+        raise ValueError("no laser scan to replay")
+    times = np.asarray(laser.times, np.float64)[rows]
+    ranges = np.asarray(laser.ranges)[rows]
+    angles = np.asarray(laser.angles)
+    if ranges.ndim != 2 or ranges.shape[1] != angles.shape[0]:
+        raise ValueError(f"laser ranges {ranges.shape} do not match {angles.shape[0]} angles")
+    T = rows.size
+    # Rounded to the microsecond: bags store nanosecond stamps, and the period is a static
+    # argument of the compiled chunk (one compilation for the same recording in memory or read
+    # back from a bag).
+    dt = round(float(np.median(np.diff(times))), 6) if T > 1 else 0.1
+    if not dt > 0:
+        raise ValueError("laser times must increase")
+    np_dtype = np.dtype(jnp.dtype(dtype).name)
+    if odometry is not None:
+        ov = np.asarray(odometry.valid, bool)
+        oi = _align(np.asarray(odometry.times)[ov], times, np.inf)
+        pose = np.asarray(odometry.pose)[ov][oi]
+    else:
+        pose = np.zeros((T, 3))
+    if detections is not None:
+        dv = np.asarray(detections.valid, bool)
+        di = _align(np.asarray(detections.times)[dv], times, 0.5 * dt)
+        dxy = np.asarray(detections.xy)[dv][np.maximum(di, 0)]
+        dmask = np.asarray(detections.mask, bool)[dv][np.maximum(di, 0)] & (di >= 0)[:, None]
+    else:
+        dxy, dmask = np.zeros((T, 1, 2)), np.zeros((T, 1), bool)
+    if params is None:
+        params = est.params(dt=dt, dtype=dtype)
+    key = jax.random.PRNGKey(0) if key is None else key
+    scfg = sensing.SensingConfig(legs.LegParams(*(float(x) for x in leg_params)),
+                                 int(max_segments), int(max_laser_people),
+                                 tuple(map(float, laser_mount)), float(static_radius))
+    static_xy = np.zeros((0, 2)) if static_xy is None else np.asarray(static_xy, np.float64)
+    if static_xy.ndim != 2 or static_xy.shape[1] != 2:
+        raise ValueError(f"static_xy must be [F, 2]; got shape {static_xy.shape}")
+    static = _Static(config, scfg, dt)
+    ranges = np.where(np.isfinite(ranges), ranges, leg_params.max_range).astype(np_dtype)
+    if user_xy is None:
+        user_xy = _first_user(ranges[0], angles.astype(np_dtype), pose[0], scfg)
+    static_map = sensing.StaticMap(jnp.asarray(static_xy, dtype), jnp.zeros((0, 2, 2), dtype))
+    run = _chunk_runner(static, int(chunk))
+    pose0 = jnp.asarray(pose[0], dtype)
+    prior = user.Prior(jnp.asarray(user_xy, dtype), pose0)
+    carry = (est.init(jax.random.split(key)[1], params, prior), sensing.init(scfg, dtype), pose0)
+    C = int(chunk)
+    outs = []
+    t0 = time.perf_counter()
+    for start in range(0, T, C):
+        n = min(C, T - start)
+        idx = np.arange(start, start + C)
+        sl = np.minimum(idx, T - 1)
+        xs = (jnp.asarray(ranges[sl]), jnp.asarray(pose[sl], dtype),
+              jnp.asarray(dxy[sl], dtype), jnp.asarray(dmask[sl] & (idx < T)[:, None]),
+              jnp.asarray(idx < T), jnp.asarray(idx, jnp.int32))
+        carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype), static_map)
+        outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
+        if progress:
+            _bar(start + n, T, time.perf_counter() - t0, stream)
+    pos, ids, mask, user_xy, found = (np.concatenate(x) for x in zip(*outs))
+    return Tracks(np.arange(1, T + 1, dtype=np.int32), times, ids, pos, mask, user_xy, found)
+
+
+def _align(src_times, dst_times, tol):
+    """Index of the source sample nearest to each destination time (-1 if farther than tol)."""
+    src = np.asarray(src_times, np.float64)
+    if src.size == 0:
+        raise ValueError("an aligned stream has no message")
+    j = np.clip(np.searchsorted(src, dst_times), 1, max(src.size - 1, 1))
+    cand = np.stack([np.clip(j - 1, 0, src.size - 1), np.clip(j, 0, src.size - 1)], -1)
+    d = np.abs(src[cand] - dst_times[:, None])
+    best = cand[np.arange(len(dst_times)), np.argmin(d, -1)]
+    return np.where(np.min(d, -1) <= tol, best, -1)
+
+
+_detect = jax.jit(legs.detect, static_argnames=("max_segments", "max_people"))
+
+
+def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
+    """The laser person nearest to the robot with x > 0 (robot frame), else 1 m ahead."""
+    det = _detect(jnp.asarray(ranges), jnp.asarray(angles), cfg.leg_params,
+                  max_segments=cfg.max_segments, max_people=cfg.max_people)
+    xy = np.asarray(det.people.xy) + np.asarray(cfg.laser_mount)
+    ok = np.asarray(det.people.mask) & (xy[:, 0] > 0)
+    rel = (xy[np.argmin(np.where(ok, np.sum(xy**2, -1), np.inf))] if ok.any()
+           else np.array([1.0, 0.0]))
+    with jax.enable_x64(True):  # host-side, at the recording's float64 precision
+        return np.asarray(geometry.from_frame(jnp.asarray(pose, jnp.float64),
+                                              jnp.asarray(rel, jnp.float64)))
+
+
+@functools.lru_cache(maxsize=16)
+def _chunk_runner(static: _Static, chunk: int):
+    est = user.build(static.estimator)
+    dt = static.dt
+
+    def run(carry, xs, params, key, angles, static_map):
+
+        def frame(c, x):
+            est_state, sensing_state, prev_pose = c
+            ranges, pose, dxy, dmask, valid, index = x
+            odometry = sensing.Odometry(pose, geometry.relative(prev_pose, pose))
+            new_sensing, sensed = sensing.sense(
+                static.sensing, sensing_state, ranges, angles, odometry, dxy, dmask, None,
+                static_map, map_pose=pose, period=dt)
+            new_est, e = est.update(jax.random.fold_in(key, index), est_state, sensed, params)
+            new = jax.tree_util.tree_map(lambda a, b: jnp.where(valid, a, b),
+                                         (new_est, new_sensing, pose), c)
+            out = (e.people, e.people_ids, e.people_mask & valid, e.user[:2],
+                   e.user_found & valid)
+            return new, out
+
+        return jax.lax.scan(frame, carry, xs)
+
+    return jax.jit(run)
+
+
+def _bar(done, total, seconds, stream=None):
+    stream = sys.stderr if stream is None else stream
+    filled = int(24 * done / total)
+    end = "\n" if done >= total or not stream.isatty() else "\r"
+    print(f"[{'#' * filled}{'.' * (24 - filled)}] {done}/{total} frames  {seconds:.1f} s",
+          end=end, file=stream, flush=True)
+
+
+def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,
+              odom_topic: str | None = None, estimator: str = "gnn", chunk: int = 64,
+              max_detections: int = 16, seed: int = 0, time_source: str = "header",
+              static_points=None, stream=sys.stdout) -> dict:
+    """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
+    layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
+    ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
+    (`track`'s ``static_xy``).
+
+    Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
+    "reports": [bags.BagReport]}``.
+
+    Example:
+      >>> track_bag("run.bag", "/scan", "out", odom_topic="/odom", estimator="jpda")
+    """
+    from pathlib import Path
+
+    from jaxtrack.io import trajectories
+
+    laser = bags.read_laser(bag, laser_topic, time_source=time_source)
+    odom = (bags.read_odometry(bag, odom_topic, time_source=time_source)
+            if odom_topic else None)
+    det = (bags.read_detections(bag, detections_topic, max_detections, time_source=time_source)
+           if detections_topic else None)
+    static_xy = (np.loadtxt(static_points, ndmin=2).reshape(-1, 2)
+                 if static_points is not None else None)
+    t0 = time.perf_counter()
+    tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed),
+                   static_xy=static_xy)
+    seconds = time.perf_counter() - t0
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv = out / "tracks.csv"
+    rows = trajectories.write_mot_csv(csv, tracks.frames, tracks.ids, tracks.pos, tracks.mask)
+    plot = out / "top_view.png"
+    write_top_view(plot, tracks, odom, title=f"{Path(bag).name}: {estimator}")
+    reports = [r.report for r in (laser, odom, det) if r is not None]
+    n_ids = len(np.unique(tracks.ids[tracks.mask])) if tracks.mask.any() else 0
+    print(f"{len(tracks.frames)} frames ({tracks.times[-1] - tracks.times[0]:.1f} s) replayed "
+          f"with {estimator} in {seconds:.1f} s (compilation included): {n_ids} track ids, "
+          f"{rows} rows -> {csv}, {plot}", file=stream)
+    for r in reports:
+        if not r.complete:
+            print(f"warning: {r.topic}: {r.messages} messages read, "
+                  f"{'unknown' if r.unreadable < 0 else r.unreadable} unreadable: {r.detail}",
+                  file=stream)
+    return {"tracks": tracks, "rows": rows, "csv": csv, "plot": plot, "reports": reports}
+
+
+def write_top_view(path, tracks: Tracks, odometry: bags.Odometry | None = None, title=""):
+    """Top view of the tracks (one colour per id), the user estimate and the odometry path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    cmap = plt.get_cmap("tab20")
+    ids = np.unique(tracks.ids[tracks.mask]) if tracks.mask.any() else []
+    for k, i in enumerate(ids):
+        sel = tracks.mask & (tracks.ids == i)
+        xy = tracks.pos[sel]
+        ax.plot(xy[:, 0], xy[:, 1], ".-", ms=2, lw=0.8, color=cmap(k % 20))
+        ax.annotate(str(int(i)), xy[-1], fontsize=6, color=cmap(k % 20))
+    ax.plot(tracks.user[:, 0], tracks.user[:, 1], "k:", lw=1.5, label="user estimate")
+    if odometry is not None:
+        p = np.asarray(odometry.pose)[np.asarray(odometry.valid, bool)]
+        ax.plot(p[:, 0], p[:, 1], "C0", lw=2, label="robot (odometry)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m] (odometry frame)")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title or f"{len(ids)} tracks")
+    ax.legend(loc="best", fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

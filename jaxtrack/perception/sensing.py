@@ -1,0 +1,212 @@
+r"""The sensing step of a person-following robot: laser legs and RGB-D people in the estimators'
+frame.
+
+One call of `sense` per frame, the same for a simulated episode and for a recording replayed
+from a bag:
+
+1. the leg detector (`jaxtrack.perception.legs.detect`) on the laser scan, with the previous
+   frame's leg candidates for its motion cue (kept in the odometry frame, brought into the
+   current sensor frame);
+2. the laser people from the sensor frame into the odometry frame (the estimators' frame) and
+   into the frame of a static map, where people at a known leg-like fixed object (a table or
+   chair leg) or on a wall are dropped (`StaticMap`: furniture legs 0.3-0.5 m apart look like a
+   person's legs, and at grazing incidence range jumps cut a wall into leg-sized segments);
+3. the RGB-D people from the robot frame into the odometry frame;
+4. the laser returns in the robot frame, the obstacle points of the behaviour's safety layers.
+
+Frames: *sensor* (the laser, at ``mount`` on the robot, facing its heading), *robot*, *odometry*
+(dead reckoning from the start pose; it drifts from the world), *map* (the static map's; in
+simulation the world, the robot being localised in its map; replaying a bag, the odometry
+frame).
+
+Example:
+  >>> cfg = SensingConfig()
+  >>> state = init(cfg, jnp.float32)
+  >>> state, sensed = sense(cfg, state, ranges, angles, Odometry(pose, increment), rgbd_xy,
+  ...                       rgbd_mask, rgbd_colour, empty_map(), map_pose=pose, period=0.1)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxtrack import _checks, geometry
+from jaxtrack.perception import legs
+
+Array = jax.Array
+
+__all__ = ["SensingConfig", "StaticMap", "Odometry", "SensingState", "Sensed", "empty_map",
+           "init", "sense", "sensor_pose", "wall_distance"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SensingConfig:
+    """Static settings of the sensing step (hashable; changing them recompiles).
+
+    Attributes:
+      leg_params: `legs.LegParams` of the leg detector; its ``min_range`` / ``max_range`` also
+        decide which returns are obstacle points.
+      max_segments, max_people: leg-detector capacities (scan segments, laser people).
+      laser_mount: (x, y) of the laser in the robot frame (it faces the robot's heading).
+      static_radius: laser people within this (m) of a fixed leg of the `StaticMap` are dropped.
+      wall_distance: laser people within this (m) of a wall of the `StaticMap` are dropped.
+    """
+
+    leg_params: legs.LegParams = legs.LegParams()
+    max_segments: int = 48
+    max_people: int = 8
+    laser_mount: tuple = (0.0, 0.0)
+    static_radius: float = 0.3
+    wall_distance: float = 0.25
+
+    def __post_init__(self):
+        if self.max_segments < 1 or self.max_people < 1:
+            raise ValueError(f"max_segments and max_people must be >= 1; got "
+                             f"{self.max_segments}, {self.max_people}")
+        if not (self.static_radius >= 0 and self.wall_distance >= 0):
+            raise ValueError("static_radius and wall_distance must be >= 0")
+        if len(self.laser_mount) != 2:
+            raise ValueError(f"laser_mount must be (x, y); got {self.laser_mount!r}")
+
+
+jax.tree_util.register_static(SensingConfig)
+
+
+class StaticMap(NamedTuple):
+    """What the robot knows of its surroundings, in the map frame.
+
+    Attributes:
+      legs: [F, 2] leg-like fixed objects (table and chair legs); F may be 0.
+      walls: [W, 2, 2] wall segments (segment, end, xy); W may be 0.
+    """
+
+    legs: Array
+    walls: Array
+
+
+class Odometry(NamedTuple):
+    """Dead reckoning at one frame.
+
+    Attributes:
+      pose: [3] the robot's pose in the odometry frame.
+      increment: [3] (dx, dy, dtheta) of the last period, in the previous robot frame.
+    """
+
+    pose: Array
+    increment: Array
+
+
+class SensingState(NamedTuple):
+    """The previous frame's leg candidates in the odometry frame: legs_xy [S, 2], legs_mask [S]."""
+
+    legs_xy: Array
+    legs_mask: Array
+
+
+class Sensed(NamedTuple):
+    """What one sensing step gives the estimators and the behaviour.
+
+    Attributes:
+      laser_xy: [L, 2] laser people (odometry frame); laser_mask: [L] (map filter applied).
+      laser_map_xy: [L, 2] the same people in the map frame.
+      rgbd_xy: [K, 2] RGB-D people (odometry frame); rgbd_mask: [K]; rgbd_colour: [K, 3].
+      odom_pose: [3] robot pose in the odometry frame; odom_speed, odom_rate: forward speed
+        (m/s) and turn rate (rad/s) of the last period, from the odometry.
+      returns_xy: [B, 2] laser returns in the robot frame (0 where invalid); returns_mask: [B].
+      truth: [4] the true user ``(p_x, p_y, v_x, v_y)`` in the odometry frame where a
+        simulator knows it (the ``truth`` estimator's input), else None.
+    """
+
+    laser_xy: Array
+    laser_mask: Array
+    laser_map_xy: Array
+    rgbd_xy: Array
+    rgbd_mask: Array
+    rgbd_colour: Array
+    odom_pose: Array
+    odom_speed: Array
+    odom_rate: Array
+    returns_xy: Array
+    returns_mask: Array
+    truth: Array | None = None
+
+
+def empty_map(dtype=jnp.float32) -> StaticMap:
+    """A `StaticMap` with no fixed legs and no walls."""
+    return StaticMap(jnp.zeros((0, 2), dtype), jnp.zeros((0, 2, 2), dtype))
+
+
+def init(config: SensingConfig, dtype=jnp.float32) -> SensingState:
+    """The sensing state before the first scan (no previous legs)."""
+    S = config.max_segments
+    return SensingState(jnp.zeros((S, 2), dtype), jnp.zeros(S, bool))
+
+
+def sensor_pose(robot_pose: Array, mount) -> Array:
+    """Pose [3] of a sensor mounted at ``mount`` (x, y) on a robot at ``robot_pose`` [3],
+    facing the robot's heading (no wrapping: the heading is the robot's, bit for bit)."""
+    xy = geometry.from_frame(robot_pose, jnp.asarray(mount, robot_pose.dtype))
+    return jnp.concatenate([xy, robot_pose[2:]])
+
+
+def wall_distance(xy: Array, segments: Array) -> Array:
+    """[N] distance from points [N, 2] to the nearest of the segments [W, 2, 2] (W >= 1)."""
+    a, b = segments[None, :, 0], segments[None, :, 1]
+    ab = b - a
+    t = jnp.clip(jnp.sum((xy[:, None] - a) * ab, -1) / jnp.sum(ab * ab, -1), 0.0, 1.0)
+    return jnp.min(geometry.safe_norm(xy[:, None] - (a + t[..., None] * ab)), 1)
+
+
+def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Array,
+          odometry: Odometry, rgbd_xy: Array, rgbd_mask: Array, rgbd_colour: Array | None,
+          static_map: StaticMap, map_pose: Array, period) -> tuple[SensingState, Sensed]:
+    """One sensing step (module docstring).
+
+    Args:
+      config: `SensingConfig`.
+      state: `SensingState` of the previous frame.
+      ranges: [B] laser ranges; angles: [B] beam angles (sensor frame).
+      odometry: `Odometry` at this frame.
+      rgbd_xy: [K, 2] RGB-D person detections in the robot frame; rgbd_mask: [K];
+        rgbd_colour: [K, 3] colour features, or None (zeros).
+      static_map: `StaticMap` (map frame).
+      map_pose: [3] the robot's pose in the map frame.
+      period: frame period (s), for the odometry's speed and turn rate.
+
+    Returns:
+      ``(SensingState, Sensed)``.
+    """
+    _checks.check_shape("ranges", ranges, (None,), "[B] ranges")
+    _checks.check_shape("angles", angles, (_checks.shape_of(ranges)[0],), "one angle per beam")
+    _checks.check_shape("rgbd_xy", rgbd_xy, (None, 2), "[K, 2] detections")
+    _checks.check_shape("rgbd_mask", rgbd_mask, (_checks.shape_of(rgbd_xy)[0],))
+    dtype = odometry.pose.dtype
+    odom = odometry.pose
+    mount = config.laser_mount
+    in_odom = sensor_pose(odom, mount)
+    det = legs.detect(ranges, angles, config.leg_params, max_segments=config.max_segments,
+                      max_people=config.max_people,
+                      prev_legs=(geometry.to_frame(in_odom, state.legs_xy), state.legs_mask))
+    people = det.people.xy.astype(dtype)
+    laser_xy = geometry.from_frame(in_odom, people)
+    laser_map = geometry.from_frame(sensor_pose(map_pose, mount), people)
+    laser_mask = det.people.mask
+    if static_map.legs.shape[0]:
+        d2 = jnp.sum((laser_map[:, None] - static_map.legs[None]) ** 2, -1)
+        laser_mask = laser_mask & ~jnp.any(d2 < config.static_radius**2, 1)
+    if static_map.walls.shape[0]:
+        laser_mask = laser_mask & (wall_distance(laser_map, static_map.walls)
+                                   > config.wall_distance)
+    K = rgbd_xy.shape[0]
+    colour = jnp.zeros((K, 3), dtype) if rgbd_colour is None else rgbd_colour.astype(dtype)
+    returns = det.points + jnp.asarray(mount, dtype)
+    sensed = Sensed(laser_xy, laser_mask, laser_map,
+                    geometry.from_frame(odom, rgbd_xy.astype(dtype)), rgbd_mask, colour, odom,
+                    odometry.increment[0] / period, odometry.increment[2] / period, returns,
+                    det.valid)
+    new = SensingState(geometry.from_frame(in_odom, det.legs_xy.astype(dtype)), det.legs_mask)
+    return new, sensed

@@ -1,0 +1,130 @@
+r"""Re-identification of the followed user by colour, over the tracks of a multi-target tracker.
+
+Each track slot accumulates the log-odds :math:`\ell_k` that it is the user from the colour
+features of the RGB-D detections nearest to it. A detection's evidence is the log-likelihood
+ratio "user vs anyone else",
+
+.. math::
+    \Lambda(c) = -\frac{\|c - c_u\|^2}{2 \sigma_c^2} - \frac{3}{2} \log(2 \pi \sigma_c^2),
+
+the user's colour being Gaussian around the colour :math:`c_u` shown at the start with std
+:math:`\sigma_c` (a tunable leaf), other people's uniform in :math:`[0, 1]^3` (density 1);
+:math:`\Lambda` is clipped to ``evidence`` so that one detection cannot settle an identity. A
+detection informs the nearest live track within ``colour_radius`` when the second nearest is at
+least ``colour_margin`` farther (otherwise the colour could be either track's). Evidence fades
+every frame, :math:`\ell_k \leftarrow f \ell_k + \Lambda` (tracks can swap people in a crowd, so
+a track's past colours say less about who it is now), with a slower fade ``fade_other`` for
+evidence *against* (otherwise a distractor seen a second ago becomes a candidate for
+re-acquisition as soon as the user is lost near them). A reused slot restarts at 0.
+
+Example:
+  >>> state = init(ReidConfig(), colour, tracks.id, user_slot=0)
+  >>> state = update(ReidConfig(), state, tracks, live, rgbd_xy, rgbd_colour, rgbd_mask, 0.1)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+Array = jax.Array
+
+__all__ = ["ReidConfig", "ReidState", "init", "evidence", "update"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ReidConfig:
+    """Static re-identification settings.
+
+    Attributes:
+      logodds_max: the log-odds saturate at +-this (6: probability 0.9975).
+      evidence: (low, high) clip of one detection's log-likelihood ratio.
+      switch: a track is (not) the user beyond +-this log-odds.
+      colour_radius: a detection informs the nearest track within this (m) ...
+      colour_margin: ... when the second nearest is this much farther (m).
+      fade: per-frame fade of the log-odds (0.95: half-life 1.4 s at 10 Hz) ...
+      fade_other: ... and of negative log-odds, evidence of being someone else (0.99: 7 s).
+    """
+
+    logodds_max: float = 6.0
+    evidence: tuple = (-4.0, 3.0)
+    switch: float = 2.0
+    colour_radius: float = 0.45
+    colour_margin: float = 0.2
+    fade: float = 0.95
+    fade_other: float = 0.99
+
+    def __post_init__(self):
+        if not (self.logodds_max > 0 and self.switch > 0 and self.colour_radius > 0
+                and self.colour_margin >= 0):
+            raise ValueError("logodds_max, switch and colour_radius must be > 0, "
+                             "colour_margin >= 0")
+        if not (0 < self.fade <= 1 and 0 < self.fade_other <= 1):
+            raise ValueError("fade and fade_other must be in (0, 1]")
+        if not self.evidence[0] <= 0 <= self.evidence[1]:
+            raise ValueError(f"evidence must be (low <= 0, high >= 0); got {self.evidence}")
+
+
+jax.tree_util.register_static(ReidConfig)
+
+
+class ReidState(NamedTuple):
+    """colour: [3] the user's colour feature; logodds: [K] per track slot that it is the user;
+    ids: [K] the track id each log-odds belongs to (a reused slot restarts)."""
+
+    colour: Array
+    logodds: Array
+    ids: Array
+
+
+def init(config: ReidConfig, colour: Array, ids: Array, user_slot: int = 0) -> ReidState:
+    """The user, of colour feature ``colour`` [3], is the track in ``user_slot`` (saturated
+    log-odds); ``ids`` [K] are the tracks' ids."""
+    dtype = colour.dtype
+    K = ids.shape[0]
+    return ReidState(colour, jnp.zeros(K, dtype).at[user_slot].set(config.logodds_max), ids)
+
+
+def evidence(config: ReidConfig, state: ReidState, positions: Array, live: Array,
+             rgbd_xy: Array, rgbd_colour: Array, rgbd_mask: Array, colour_std) -> Array:
+    """[K] this frame's log-likelihood ratios per track slot (module docstring).
+
+    Args:
+      positions: [K, 2] track positions; live: [K] live slots.
+      rgbd_xy: [M, 2] RGB-D detections (same frame); rgbd_colour: [M, 3]; rgbd_mask: [M].
+      colour_std: :math:`\\sigma_c`.
+    """
+    dtype = positions.dtype
+    s2 = colour_std**2
+    dc = jnp.sum((rgbd_colour.astype(dtype) - state.colour) ** 2, -1)
+    llr = -0.5 * dc / s2 - 1.5 * jnp.log(2.0 * jnp.pi * s2)
+    llr = jnp.clip(llr, *config.evidence)
+    d2 = jnp.sum((rgbd_xy[:, None, :] - positions[None, :, :]) ** 2, -1)   # [M, K]
+    d2 = jnp.where(live[None], d2, jnp.inf)
+    first = jnp.argmin(d2, 1)
+    d1 = jnp.take_along_axis(d2, first[:, None], 1)[:, 0]
+    second = jnp.min(jnp.where(jnp.arange(d2.shape[1]) == first[:, None], jnp.inf, d2), 1)
+    r1 = jnp.sqrt(jnp.minimum(d1, 1e6))
+    r2 = jnp.sqrt(jnp.minimum(second, 1e6))
+    use = rgbd_mask & (r1 <= config.colour_radius) & (r2 - r1 >= config.colour_margin)
+    onehot = (first[:, None] == jnp.arange(d2.shape[1])) & use[:, None]
+    return jnp.sum(jnp.where(onehot, llr[:, None], 0.0), 0)
+
+
+def update(config: ReidConfig, state: ReidState, positions: Array, ids: Array, live: Array,
+           rgbd_xy: Array, rgbd_colour: Array, rgbd_mask: Array, colour_std) -> ReidState:
+    """Fade the log-odds, restart reused slots, add this frame's `evidence`, clip.
+
+    Args:
+      positions: [K, 2], ids: [K], live: [K] of the tracks after this frame's tracker step;
+      the rest as `evidence`.
+    """
+    fade = jnp.where(state.logodds < 0.0, config.fade_other, config.fade)
+    logodds = jnp.where(live & (ids == state.ids), fade * state.logodds, 0.0)
+    logodds = jnp.clip(logodds + evidence(config, state, positions, live, rgbd_xy, rgbd_colour,
+                                          rgbd_mask, colour_std),
+                       -config.logodds_max, config.logodds_max)
+    return state._replace(logodds=logodds, ids=ids)
