@@ -36,7 +36,8 @@ def build(kind, args):
 
     cfg = episode.EpisodeConfig(scene.build(num_people=8), kind, duration=args.duration,
                                 distractors=args.people,
-                                behaviour=behaviour.FollowingConfig(avoidance=not args.no_avoidance))
+                                behaviour=behaviour.FollowingConfig(
+                                    avoidance=not args.no_avoidance))
     return episode.make_episode(cfg), episode.make_params(cfg), cfg
 
 

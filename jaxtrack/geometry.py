@@ -8,8 +8,10 @@ frame (`from_frame`), and a parent point :math:`q` is :math:`R(\theta)^T (q - x)
 .. math:: R(\theta) = \begin{bmatrix} \cos\theta & -\sin\theta \\
                                       \sin\theta & \cos\theta \end{bmatrix}.
 
-Every function broadcasts over leading axes of the points and is jittable, vmappable and
-differentiable; headings of composed poses are wrapped to :math:`[-\pi, \pi)`.
+Every function broadcasts over leading axes (a pose ``[..., 3]`` against points ``[..., 2]``:
+``to_frame(particles[:, None], points)`` gives every point in every particle's frame) and is
+jittable, vmappable and differentiable; headings of composed poses are wrapped to
+:math:`[-\pi, \pi)`.
 
 Example:
   >>> robot = jnp.array([1.0, 2.0, jnp.pi / 2])
@@ -26,7 +28,8 @@ from jaxtrack.angles import wrap
 
 Array = jax.Array
 
-__all__ = ["rotate", "to_frame", "from_frame", "compose", "inverse", "relative", "safe_norm"]
+__all__ = ["rotate", "unrotate", "to_frame", "from_frame", "compose", "inverse", "relative",
+           "safe_norm"]
 
 
 def rotate(theta, v: Array) -> Array:
@@ -42,27 +45,35 @@ def rotate(theta, v: Array) -> Array:
     return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
 
 
+def unrotate(theta, v: Array) -> Array:
+    r"""Vectors [..., 2] rotated by ``-theta``: :math:`R(\theta)^T v`, e.g. a world-frame
+    velocity in the axes of a robot of heading ``theta``.
+
+    Example:
+      >>> unrotate(jnp.pi / 2, jnp.array([0.0, 1.0]))  # (1, 0)
+    """
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], -1)
+
+
 def to_frame(pose: Array, xy: Array) -> Array:
-    r"""Parent-frame points [..., 2] into the frame of ``pose`` [3]: :math:`R(\theta)^T (q - x)`.
+    r"""Parent-frame points [..., 2] into the frame of ``pose`` [..., 3]:
+    :math:`R(\theta)^T (q - x)`.
 
     Example:
       >>> to_frame(jnp.array([1.0, 0.0, jnp.pi / 2]), jnp.array([1.0, 1.0]))  # (1, 0)
     """
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    d = xy - pose[:2]
-    return jnp.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+    return unrotate(pose[..., 2], xy - pose[..., :2])
 
 
 def from_frame(pose: Array, xy: Array) -> Array:
-    r"""Points [..., 2] given in the frame of ``pose`` [3] into the parent frame:
+    r"""Points [..., 2] given in the frame of ``pose`` [..., 3] into the parent frame:
     :math:`x + R(\theta) p`.
 
     Example:
       >>> from_frame(jnp.array([1.0, 0.0, jnp.pi / 2]), jnp.array([1.0, 0.0]))  # (1, 1)
     """
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    return pose[:2] + jnp.stack([c * xy[..., 0] - s * xy[..., 1],
-                                 s * xy[..., 0] + c * xy[..., 1]], -1)
+    return pose[..., :2] + rotate(pose[..., 2], xy)
 
 
 def compose(a: Array, b: Array) -> Array:

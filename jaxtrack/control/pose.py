@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
 
 Array = jax.Array
@@ -219,9 +219,7 @@ def to_body_frame(velocity: Array, heading: Array) -> Array:
     Example:
       >>> to_body_frame(jnp.array([0.0, 1.0]), jnp.pi / 2)  # (1, 0)
     """
-    c, s = jnp.cos(heading), jnp.sin(heading)
-    vx, vy = velocity[..., 0], velocity[..., 1]
-    return jnp.stack([c * vx + s * vy, -s * vx + c * vy], -1)
+    return geometry.unrotate(heading, velocity)
 
 
 def in_stop_region(pose: Array, target: Array, limits: PoseLimits = PoseLimits()) -> Array:
@@ -453,13 +451,8 @@ def _sanitise(pose, target, valid):
     return jnp.where(valid, pose, 0.0), jnp.where(valid, target, 0.0)
 
 
-def _safe_norm(v):
-    sq = jnp.sum(v * v, -1)
-    return jnp.where(sq > 0, jnp.sqrt(jnp.where(sq > 0, sq, 1.0)), 0.0)
-
-
 def _errors(pose, target):
-    return _safe_norm(pose[:2] - target[:2]), jnp.abs(wrap(pose[2] - target[2]))
+    return geometry.safe_norm(pose[:2] - target[:2]), jnp.abs(wrap(pose[2] - target[2]))
 
 
 def _reference(pose, target, params, limits):
@@ -468,7 +461,7 @@ def _reference(pose, target, params, limits):
     lam_x = jnp.asarray(g.lambda_x, dtype)
     lam_th = jnp.asarray(g.lambda_theta, dtype)
     v = -lam_x * (pose[:2] - target[:2])
-    speed = _safe_norm(v)
+    speed = geometry.safe_norm(v)
     v = v * (limits.max_speed / jnp.maximum(speed, limits.max_speed))
     w = jnp.clip(-lam_th * wrap(pose[2] - target[2]), -limits.max_turn_rate,
                  limits.max_turn_rate)

@@ -58,7 +58,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
 
 Array = jax.Array
@@ -249,9 +249,8 @@ def _as_arrays(xy, person_pose, interest):
 
 def _gaussian(q, var_major, var_minor, alpha):
     """exp(-q^T Sigma^-1 q / 2) with Sigma = R(alpha) diag(var_major, var_minor) R(alpha)^T."""
-    c, s = jnp.cos(alpha), jnp.sin(alpha)
-    a = c * q[..., 0] + s * q[..., 1]
-    b = -s * q[..., 0] + c * q[..., 1]
+    ab = geometry.unrotate(alpha, q)
+    a, b = ab[..., 0], ab[..., 1]
     return jnp.exp(-0.5 * (a * a / var_major + b * b / var_minor))
 
 

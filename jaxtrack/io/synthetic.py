@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.tracking import tracker
 
 Array = jax.Array
@@ -138,9 +138,8 @@ class SimulatedDetections(NamedTuple):
 def in_view(xy: Array, model: SensorModel, sensor_pose: Array) -> Array:
     """[...] bools: positions ``xy`` [..., 2] inside the field of view of a sensor at
     ``sensor_pose`` [3] (x, y, heading): bearing within fov / 2 and range within the limits."""
-    d = xy - sensor_pose[:2]
-    c, s = jnp.cos(sensor_pose[2]), jnp.sin(sensor_pose[2])
-    fwd, left = c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]
+    rel = geometry.to_frame(sensor_pose, xy)
+    fwd, left = rel[..., 0], rel[..., 1]
     dist = jnp.sqrt(fwd * fwd + left * left)
     bearing = jnp.arctan2(left, fwd)
     return (((model.fov >= 2 * jnp.pi) | (jnp.abs(bearing) <= 0.5 * model.fov))

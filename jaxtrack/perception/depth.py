@@ -19,8 +19,9 @@ floor-removed and stored at a fixed capacity with a mask:
 - `pca_heading`: section 3.1.2, the minor axis of the ellipse fitted (by PCA) to the floor
   projection of the points in a larger window, kept within
   :math:`[\theta_{t-1} - \theta_h, \theta_{t-1} + \theta_h]` and smoothed.
-- `track_step` / `init_tracker`: the whole seed tracker for one frame (particle filter on the
-  position with the last heading, then PCA heading), for closed loops.
+
+The whole seed tracker (particle filter on the position with the last heading, then the PCA
+heading) is `jaxtrack.tracking.humanoid.depth_pf`.
 
 All functions are pure, jittable and vmappable; masked or non-finite points never count.
 """
@@ -33,15 +34,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
-from jaxtrack.filters import particle
 
 Array = jax.Array
 
-__all__ = ["RobotModel", "DepthFrame", "PCAHeading", "TrackerParams", "TrackerState",
-           "point_count", "smooth_point_count", "log_likelihood", "fold_half_turn",
-           "pca_heading", "init_tracker", "track_step"]
+__all__ = ["RobotModel", "DepthFrame", "PCAHeading", "point_count", "smooth_point_count",
+           "log_likelihood", "fold_half_turn", "pca_heading"]
 
 
 class RobotModel(NamedTuple):
@@ -345,102 +344,6 @@ def pca_heading(points: Array, mask: Array, centre: Array, radius, prev_heading,
 
 
 # ---------------------------------------------------------------------------------------------
-# The whole seed tracker, one frame at a time
-
-
-class TrackerParams(NamedTuple):
-    """Parameters of `track_step` (float leaves; defaults ours unless stated).
-
-    Attributes:
-      model: `RobotModel` of the likelihood.
-      position_noise: std (m) of the Gaussian random-walk propagation per frame (the seed uses
-        "a Gaussian function", no value printed; 0.02 m at the seed's ~4 Hz).
-      eps: count floor of `log_likelihood`.
-      pca_radius: PCA window radius (m), larger than the model as the seed asks.
-      window: continuity window :math:`\\theta_h` (rad), 20 deg.
-      gain: heading smoothing gain.
-    """
-
-    model: RobotModel = RobotModel()
-    position_noise: float = 0.02
-    eps: float = 1.0
-    pca_radius: float = 0.25
-    window: float = math.radians(20.0)
-    gain: float = 0.5
-
-
-class TrackerState(NamedTuple):
-    """State of the seed tracker: position particles [N, 2] and the heading estimate."""
-
-    particles: particle.ParticleSet
-    heading: Array
-
-
-def init_tracker(key: Array, position: Array, heading, num_particles: int = 500,
-                 spread=0.05) -> TrackerState:
-    """Tracker state from the user's initial pose (the seed initialises by hand in a GUI).
-
-    Args:
-      key: PRNG key.
-      position: [2] initial position.
-      heading: initial heading (rad).
-      num_particles: N.
-      spread: std (m) of the initial Gaussian particle cloud.
-
-    Example:
-      >>> state = init_tracker(key, jnp.array([0.0, 0.0]), 0.0, 500)
-    """
-    _checks.check_shape("position", position, (2,), "initial (x, y)")
-    _checks.check_finite("position", position)
-    _checks.check_finite("heading", heading)
-    position = jnp.asarray(position)
-    dtype = jnp.result_type(position.dtype, jnp.float32)
-    eps = jax.random.normal(key, (num_particles, 2), dtype)
-    ps = particle.ParticleSet(position.astype(dtype) + spread * eps,
-                              jnp.full((num_particles,), -math.log(num_particles), dtype))
-    return TrackerState(ps, jnp.asarray(heading, dtype))
-
-
-def track_step(key: Array, state: TrackerState, points: Array, mask: Array,
-               params: TrackerParams = TrackerParams()) -> tuple[TrackerState, Array]:
-    r"""One frame of the seed tracker: SIR on the position, then the PCA heading.
-
-    1. Resample (SIR, systematic), propagate by a Gaussian random walk, weight by
-       `log_likelihood` with the cuboid rotated by the *previous* heading; the position is the
-       weighted mean of the particles (eq. 3).
-    2. `pca_heading` around that position with the continuity window.
-
-    Args:
-      key: PRNG key.
-      state: `TrackerState`.
-      points: [P, 3] world-frame points; mask: [P] bools.
-      params: `TrackerParams`.
-
-    Returns:
-      ``(state, pose [3])`` with the estimate (x, y, theta).
-
-    Example:
-      >>> state, pose = track_step(key, state, points, mask)
-    """
-    _check_cloud(points, mask)
-    if not isinstance(state, TrackerState):
-        raise TypeError(f"state must be a depth.TrackerState; got {type(state).__name__}")
-    frame = DepthFrame(points, mask, state.heading)
-
-    def transition(k, x):
-        return x + params.position_noise * jax.random.normal(k, x.shape, x.dtype)
-
-    def ll(z, x):
-        return log_likelihood(z, x, params.model, eps=params.eps)
-
-    ps, _ = particle.step(key, state.particles, frame, transition, ll, vectorized=True)
-    position = particle.weighted_mean(ps)
-    heading = pca_heading(points, mask, position, params.pca_radius, state.heading,
-                          params.window, params.gain).heading
-    return TrackerState(ps, heading), jnp.concatenate([position, heading[None]])
-
-
-# ---------------------------------------------------------------------------------------------
 # Private helpers
 
 
@@ -454,11 +357,10 @@ def _regions(points, mask, pose, model, softness):
     valid = jnp.asarray(mask, bool) & jnp.all(jnp.isfinite(points), -1)
     # Zeros in place of invalid points keep NaN out of the values and the gradients.
     points = jnp.where(valid[:, None], points, 0.0)
-    x, y, th = pose[..., 0, None], pose[..., 1, None], pose[..., 2, None]
-    dx, dy, z = points[:, 0] - x, points[:, 1] - y, points[:, 2]
-    c, s = jnp.cos(th), jnp.sin(th)
-    u = c * dx + s * dy       # along the facing direction
-    v = -s * dx + c * dy      # along the robot's left
+    d = points[:, :2] - pose[..., None, :2]                         # [..., P, 2]
+    uv = geometry.unrotate(pose[..., None, 2], d)
+    u, v = uv[..., 0], uv[..., 1]     # along the facing direction, along the robot's left
+    dx, dy, z = d[..., 0], d[..., 1], points[:, 2]
     r2 = dx * dx + dy * dy
     m = model
     if softness is None:

@@ -51,8 +51,9 @@ Array = jax.Array
 
 __all__ = ["SENSORS", "Prior", "UserEstimate", "MultiTargetConfig", "MultiTargetParams",
            "MultiTargetState", "ParticleConfig", "RobotFrameKFConfig", "RobotFrameKFParams",
-           "RobotFrameKFState", "TruthConfig", "TruthParams", "TruthState", "multi_target", "particle_filter",
-           "robot_frame_kf", "truth", "build", "with_sensors", "CONFIGS", "TRACKER"]
+           "RobotFrameKFState", "TruthConfig", "TruthParams", "TruthState", "multi_target",
+           "particle_filter", "robot_frame_kf", "truth", "build", "with_sensors", "CONFIGS",
+           "TRACKER"]
 
 SENSORS = ("both", "laser", "rgbd")
 

@@ -41,7 +41,7 @@ from jaxtrack.control import behaviour as behaviour_mod
 from jaxtrack.control import follower
 from jaxtrack.perception import sensing
 from jaxtrack.tracking import user
-from sims.following import lidar, pedestrians, world
+from sims.following import lidar, world
 from sims.following import scene as scene_mod
 
 Array = jax.Array

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
 
 Array = jax.Array
@@ -224,9 +224,9 @@ def _visible(cfg, robot_pose, people_xy, people_mask):
     """(visible [P], positions in the robot frame [P, 2])."""
     dtype = people_xy.dtype
     ok = people_mask & jnp.all(jnp.isfinite(people_xy), -1)
-    c, s = jnp.cos(robot_pose[2]), jnp.sin(robot_pose[2])
-    d = jnp.where(ok[:, None], people_xy - robot_pose[:2], jnp.array([1.0, 0.0], dtype))
-    rel = jnp.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1)
+    # Absent people (NaN allowed) are put 1 m away; `ok` leaves them out below.
+    xy = jnp.where(ok[:, None], people_xy, robot_pose[:2] + jnp.array([1.0, 0.0], dtype))
+    rel = geometry.to_frame(robot_pose, xy)
     dist = jnp.sqrt(jnp.sum(rel * rel, -1))
     bearing = jnp.arctan2(rel[:, 1], rel[:, 0])
     in_view = (ok & (jnp.abs(bearing) <= 0.5 * cfg.fov) & (dist >= cfg.min_range)
@@ -296,7 +296,7 @@ def integrate(pose: Array, odom: Array) -> Array:
     _checks.check_shape("pose", pose, (3,), "(x, y, theta)")
     _checks.check_shape("odom", odom, (3,), "(dx, dy, dtheta)")
     pose = jnp.asarray(pose)
-    return _compose(pose, jnp.asarray(odom, pose.dtype))
+    return geometry.compose(pose, jnp.asarray(odom, pose.dtype))
 
 
 def accumulate(pose0: Array, odoms: Array) -> Array:
@@ -310,16 +310,10 @@ def accumulate(pose0: Array, odoms: Array) -> Array:
     pose0 = jnp.asarray(pose0)
 
     def body(pose, odom):
-        nxt = _compose(pose, odom)
+        nxt = geometry.compose(pose, odom)
         return nxt, nxt
 
     return lax.scan(body, pose0, jnp.asarray(odoms, pose0.dtype))[1]
-
-
-def _compose(pose, odom):
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    return jnp.stack([pose[0] + c * odom[0] - s * odom[1], pose[1] + s * odom[0] + c * odom[1],
-                      wrap(pose[2] + odom[2])])
 
 
 def _std(var):

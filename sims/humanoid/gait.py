@@ -44,6 +44,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxtrack import geometry
 from jaxtrack.angles import wrap
 from sims.humanoid.scene import Scene
 
@@ -115,11 +116,6 @@ class GaitState(NamedTuple):
     standing: Array
 
 
-def _rot(theta, v):
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
-
-
 def _omega(params):
     return jnp.sqrt(_G / params.com_height)
 
@@ -134,12 +130,12 @@ def init(pose: Array, params: GaitParams = GaitParams(), dtype=jnp.float32) -> G
     pose = jnp.asarray(pose, dtype)
     xy, th = pose[:2], pose[2]
     half = 0.5 * params.foot_separation
-    left = xy + _rot(th, jnp.array([0.0, half], dtype))
-    right = xy + _rot(th, jnp.array([0.0, -half], dtype))
+    left = xy + geometry.rotate(th, jnp.array([0.0, half], dtype))
+    right = xy + geometry.rotate(th, jnp.array([0.0, -half], dtype))
     w = _omega(params)
     u = half * w * jnp.tanh(0.5 * w * params.step_period)
     zero = jnp.zeros((), dtype)
-    return GaitState(com=xy, com_vel=_rot(th, jnp.stack([zero, u.astype(dtype)])),
+    return GaitState(com=xy, com_vel=geometry.rotate(th, jnp.stack([zero, u.astype(dtype)])),
                      support=right, support_yaw=th, swing_start=left, swing_start_yaw=th,
                      swing_target=left, swing_target_yaw=th, side=jnp.asarray(-1.0, dtype),
                      phase=jnp.asarray(params.step_period, dtype), heading=th, heading_next=th,
@@ -175,16 +171,16 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
     walking = switch & ~stand
     d_head = jnp.where(walking, params.heading_noise * jax.random.normal(k_head, (), dtype), 0.0)
     shift = (params.stride_noise * jax.random.normal(k_len, (), dtype)
-             * _rot(state.heading_next, v * T)
+             * geometry.rotate(state.heading_next, v * T)
              + params.slip_noise * jax.random.normal(k_slip, (2,), dtype))
     shift = jnp.where(walking, shift, 0.0)
     pivot = state.swing_target + shift
 
     def rigid(x):
-        return pivot + _rot(d_head, x + shift - pivot)
+        return pivot + geometry.rotate(d_head, x + shift - pivot)
 
     com0 = jnp.where(switch, rigid(state.com), state.com)
-    vel0 = jnp.where(switch, _rot(d_head, state.com_vel), state.com_vel)
+    vel0 = jnp.where(switch, geometry.rotate(d_head, state.com_vel), state.com_vel)
     new_support = pivot
     new_support_yaw = state.swing_target_yaw + d_head
     swing_from = rigid(state.support)
@@ -199,8 +195,8 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
     heading_next = wrap(heading_now + turn)
     b = jnp.stack([v[0] * T / (e - 1.0),
                    new_side * params.foot_separation / (1.0 + e) + v[1] * T / (e - 1.0)])
-    target = xi_T - _rot(heading_next, b)
-    in_place = new_support + _rot(heading_next, jnp.stack(
+    target = xi_T - geometry.rotate(heading_next, b)
+    in_place = new_support + geometry.rotate(heading_next, jnp.stack(
         [jnp.zeros((), dtype), -new_side * params.foot_separation]))
     stride = target - in_place
     length = jnp.sqrt(jnp.sum(stride * stride) + 1e-12)
@@ -286,11 +282,11 @@ def qpos(scene: Scene, state: GaitState, params: GaitParams = GaitParams()) -> A
     a, b = body.thigh, body.shin
     s = _progress(state, params)
     for i, sign in enumerate((1.0, -1.0)):
-        hip = pose[:2] + _rot(psi, jnp.array([0.0, sign * body.hip_offset], dtype))
-        d_xy = _rot(-psi, ft[i, :2] - hip)
+        hip = pose[:2] + geometry.rotate(psi, jnp.array([0.0, sign * body.hip_offset], dtype))
+        d_xy = geometry.rotate(-psi, ft[i, :2] - hip)
         dz = ft[i, 2] + body.ankle_height - z_root
         yaw = wrap(ft[i, 3] - psi)
-        d = jnp.concatenate([_rot(-yaw, d_xy), dz[None]])
+        d = jnp.concatenate([geometry.rotate(-yaw, d_xy), dz[None]])
         roll = jnp.arctan2(d[1], -d[2])
         vz = jnp.sqrt(d[1] ** 2 + d[2] ** 2)
         L2 = d[0] ** 2 + vz ** 2

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxtrack import geometry
 from jaxtrack.control import avoidance, follower, route
 
 BOUNDS = ((-3.0, 3.0), (-2.0, 2.0))
@@ -232,7 +233,8 @@ def closed_loop(use_route, steps=400, dt=0.1):
             away = wp - pose[:2]
             reach = wp + jnp.linalg.norm(point) * away / jnp.maximum(jnp.linalg.norm(away), 1e-3)
             goal = jnp.where(direct, person, reach)
-        u = follower.control(fp, pose, goal, jnp.zeros(2), prev, dt, reverse=False)
+        u = follower.control(fp, geometry.to_frame(pose, goal), jnp.zeros(2), prev, dt,
+                             reverse=False)
         c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
         d = obst - pose[:2]
         local = jnp.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1)

@@ -10,7 +10,6 @@ import sys
 import textwrap
 from contextlib import redirect_stdout
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest

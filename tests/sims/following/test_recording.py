@@ -30,7 +30,8 @@ def test_recording_sensors_agree_with_the_truth(following_recording):
     # RGB-D detections (robot frame) lie near true people, up to clutter and 0.3 m noise.
     near = []
     for t in range(T):
-        w = np.asarray(geometry.from_frame(jnp.asarray(rec.robot[t]), rec.det_xy[t][rec.det_mask[t]]))
+        w = np.asarray(geometry.from_frame(jnp.asarray(rec.robot[t]),
+                                           jnp.asarray(rec.det_xy[t][rec.det_mask[t]])))
         d = np.linalg.norm(w[:, None] - rec.people[t][None], axis=-1).min(1)
         near.extend(d < 1.2)
     assert len(near) > T and np.mean(near) > 0.8
