@@ -51,8 +51,9 @@ from jaxtrack.angles import wrap
 
 Array = jax.Array
 
-__all__ = ["GaitParams", "PedestrianConfig", "PedestrianState", "init", "step", "rollout",
-           "robot_start", "leg_capsules", "torso_position", "cadence", "PARK_DEPTH"]
+__all__ = ["GaitParams", "SocialForces", "Walks", "UserBehaviour", "PedestrianConfig",
+           "PedestrianState", "init", "step", "rollout", "robot_start", "leg_capsules",
+           "torso_position", "cadence", "PARK_DEPTH"]
 
 PARK_DEPTH = -50.0
 """Height (m) at which inactive people are parked, far below the floor and any sensor."""
@@ -86,16 +87,10 @@ class GaitParams(NamedTuple):
     torso_top: float = 1.5
 
 
-class PedestrianConfig(NamedTuple):
-    """Room, scenario and social-force parameters.
+class SocialForces(NamedTuple):
+    """Social-force parameters (Helbing & Molnar): how people move.
 
     Attributes:
-      room: (width along x, depth along y) of the room, centred at the origin (m).
-      obstacles: [K, 3] furniture footprints (centre x, centre y, radius) people walk around
-        (`sims.following.scene.pedestrian_config` fills them from the scene).
-      distractors: number of active people besides the user (person 0).
-      speed_range: preferred walking speeds are drawn uniformly in this range (m/s).
-      max_speed: hard speed limit (m/s).
       relax_time: :math:`\\tau`, time to reach the preferred velocity (s).
       person_radius: body radius used by the forces and the projections (m).
       min_separation: no two people's centres come closer than this (m).
@@ -104,31 +99,11 @@ class PedestrianConfig(NamedTuple):
       anisotropy: :math:`\\lambda`, weight of what is behind a person.
       wall_strength, wall_range: wall force :math:`A_w`, :math:`B_w`.
       wall_margin: centres stay this far inside the walls (m).
-      robot_radius: radius of the robot's disc for avoidance (m).
       robot_strength, robot_range: robot force parameters.
-      waypoint_tolerance: a waypoint is reached within this distance (m).
-      user_min_leg: the user's next waypoint is at least this far (m).
-      stop_prob: probability of stopping at a waypoint.
-      stop_rate: rate (1/s) of stopping anywhere while walking.
-      stop_duration: stop times are drawn uniformly in this range (s).
-      cross_prob: probability that a distractor's next waypoint crosses the user's path.
+      max_speed: hard speed limit (m/s).
       max_turn_rate: heading rate limit (rad/s).
-      robot_start_distance: the robot starts this far behind the user (`robot_start`).
-      user_wait: ``(near, far)`` distances (m) between the user and the robot: beyond ``near``
-        the user slows down linearly, and at ``far`` they stand and wait for their robot, as
-        the user of a following robot does; ``None``: the user ignores the robot.
-      user_return: beyond this distance (m) from the robot (with ``user_wait`` set) the user
-        walks back toward it, at their preferred speed from half a metre further on: a user
-        whose robot has lost them comes back into its sensors' range instead of waiting out
-        of it. ``None``: they only wait.
-      gait: `GaitParams`.
     """
 
-    room: tuple = (10.0, 8.0)
-    obstacles: tuple | Array = ()
-    distractors: int = 4
-    speed_range: tuple = (0.5, 1.5)
-    max_speed: float = 1.5
     relax_time: float = 0.5
     person_radius: float = 0.25
     min_separation: float = 0.6
@@ -139,19 +114,72 @@ class PedestrianConfig(NamedTuple):
     wall_strength: float = 3.0
     wall_range: float = 0.2
     wall_margin: float = 0.4
-    robot_radius: float = 0.3
     robot_strength: float = 3.0
     robot_range: float = 0.3
+    max_speed: float = 1.5
+    max_turn_rate: float = 4.0
+
+
+class Walks(NamedTuple):
+    """Where people walk: random waypoints, stops.
+
+    Attributes:
+      speed_range: preferred walking speeds are drawn uniformly in this range (m/s).
+      waypoint_tolerance: a waypoint is reached within this distance (m).
+      user_min_leg: the user's next waypoint is at least this far (m).
+      stop_prob: probability of stopping at a waypoint.
+      stop_rate: rate (1/s) of stopping anywhere while walking.
+      stop_duration: stop times are drawn uniformly in this range (s).
+      cross_prob: probability that a distractor's next waypoint crosses the user's path.
+    """
+
+    speed_range: tuple = (0.5, 1.5)
     waypoint_tolerance: float = 0.4
     user_min_leg: float = 2.5
     stop_prob: float = 0.3
     stop_rate: float = 0.02
     stop_duration: tuple = (1.0, 4.0)
     cross_prob: float = 0.5
-    max_turn_rate: float = 4.0
+
+
+class UserBehaviour(NamedTuple):
+    """How the user treats their robot.
+
+    Attributes:
+      robot_start_distance: the robot starts this far behind the user (`robot_start`).
+      wait: ``(near, far)`` distances (m) between the user and the robot: beyond ``near`` the
+        user slows down linearly, and at ``far`` they stand and wait for their robot, as the
+        user of a following robot does; ``None``: the user ignores the robot.
+      return_distance: beyond this distance (m) from the robot (with ``wait`` set) the user
+        walks back toward it, at their preferred speed from half a metre further on: a user
+        whose robot has lost them comes back into its sensors' range instead of waiting out of
+        it. ``None``: they only wait.
+    """
+
     robot_start_distance: float = 1.2
-    user_wait: tuple | None = (3.0, 4.0)
-    user_return: float | None = 4.0
+    wait: tuple | None = (3.0, 4.0)
+    return_distance: float | None = 4.0
+
+
+class PedestrianConfig(NamedTuple):
+    """The pedestrians' room and scenario, by concern.
+
+    Attributes:
+      room: (width along x, depth along y) of the room, centred at the origin (m).
+      obstacles: [K, 3] furniture footprints (centre x, centre y, radius) people walk around
+        (`sims.following.scene.pedestrian_config` fills them from the scene).
+      distractors: number of active people besides the user (person 0).
+      robot_radius: radius of the robot's disc for avoidance (m).
+      forces: `SocialForces`. walks: `Walks`. user: `UserBehaviour`. gait: `GaitParams`.
+    """
+
+    room: tuple = (10.0, 8.0)
+    obstacles: tuple | Array = ()
+    distractors: int = 4
+    robot_radius: float = 0.3
+    forces: SocialForces = SocialForces()
+    walks: Walks = Walks()
+    user: UserBehaviour = UserBehaviour()
     gait: GaitParams = GaitParams()
 
 
@@ -197,7 +225,7 @@ def _unit(v, eps=1e-9):
 def _free(points, cfg, clearance, dtype):
     """[..., 2] -> bool: outside every footprint by ``clearance`` and inside the walls."""
     obs = _obstacles(cfg, dtype)
-    hw, hh = 0.5 * cfg.room[0] - cfg.wall_margin, 0.5 * cfg.room[1] - cfg.wall_margin
+    hw, hh = 0.5 * cfg.room[0] - cfg.forces.wall_margin, 0.5 * cfg.room[1] - cfg.forces.wall_margin
     inside = (jnp.abs(points[..., 0]) <= hw) & (jnp.abs(points[..., 1]) <= hh)
     if obs.shape[0] == 0:
         return inside
@@ -208,19 +236,19 @@ def _free(points, cfg, clearance, dtype):
 def _sample_goals(u, cfg, pos, user_pos, user_dir, dtype):
     """New waypoint of every person from uniforms ``u`` [P, 2 C + 2]: ([P, 2], [P] crossing)."""
     P = pos.shape[0]
-    hw, hh = 0.5 * cfg.room[0] - cfg.wall_margin, 0.5 * cfg.room[1] - cfg.wall_margin
+    hw, hh = 0.5 * cfg.room[0] - cfg.forces.wall_margin, 0.5 * cfg.room[1] - cfg.forces.wall_margin
     cand = (2.0 * u[:, :2 * _CANDIDATES] - 1.0).reshape(P, _CANDIDATES, 2)
     cand = cand * jnp.asarray([hw, hh], dtype)
-    clearance = cfg.person_radius + 0.3
+    clearance = cfg.forces.person_radius + 0.3
     ok = _free(cand, cfg, clearance, dtype)
-    far = jnp.linalg.norm(cand - pos[:, None], axis=-1) >= cfg.user_min_leg
+    far = jnp.linalg.norm(cand - pos[:, None], axis=-1) >= cfg.walks.user_min_leg
     ok = ok & jnp.where((jnp.arange(P) == 0)[:, None], far, True)
     first = jnp.argmax(ok, -1)
     goal = jnp.sum(jnp.where((jnp.arange(_CANDIDATES) == first[:, None])[..., None], cand, 0.0), 1)
     # Crossing: mirror the distractor's position through a point 1-3 m ahead of the user.
     ahead = user_pos + user_dir * (1.0 + 2.0 * u[:, -1:])
     mirror = 2.0 * ahead - pos
-    cross = ((u[:, -2] < cfg.cross_prob) & (jnp.arange(P) > 0)
+    cross = ((u[:, -2] < cfg.walks.cross_prob) & (jnp.arange(P) > 0)
              & _free(mirror, cfg, clearance, dtype))
     return jnp.where(cross[:, None], mirror, goal), cross
 
@@ -265,21 +293,23 @@ def init(key: Array, cfg: PedestrianConfig, num_people: int,
     if obs not in ((0,),) and (len(obs) != 2 or obs[1] != 3):
         raise ValueError(f"cfg.obstacles must have shape [K, 3]; got {list(obs)}")
     _checks.check_finite("cfg.obstacles", cfg.obstacles)
-    lo, hi = cfg.speed_range
-    if _checks.is_concrete(lo) and not 0.0 < float(lo) <= float(hi) <= float(cfg.max_speed):
-        raise ValueError(f"speed_range must satisfy 0 < lo <= hi <= max_speed; got "
-                         f"{tuple(cfg.speed_range)} with max_speed {cfg.max_speed}")
-    if cfg.user_wait is not None and all(_checks.is_concrete(x) for x in cfg.user_wait):
-        near_w, far_w = (float(x) for x in cfg.user_wait)
+    lo, hi = cfg.walks.speed_range
+    if _checks.is_concrete(lo) and not 0.0 < float(lo) <= float(hi) <= float(cfg.forces.max_speed):
+        raise ValueError(f"walks.speed_range must satisfy 0 < lo <= hi <= max_speed; got "
+                         f"{tuple(cfg.walks.speed_range)} with forces.max_speed "
+                         f"{cfg.forces.max_speed}")
+    if cfg.user.wait is not None and all(_checks.is_concrete(x) for x in cfg.user.wait):
+        near_w, far_w = (float(x) for x in cfg.user.wait)
         if not 0.0 <= near_w < far_w:
-            raise ValueError(f"user_wait must be (near, far) with 0 <= near < far; got "
-                             f"{tuple(cfg.user_wait)}")
-        ret = cfg.user_return
+            raise ValueError(f"user.wait must be (near, far) with 0 <= near < far; got "
+                             f"{tuple(cfg.user.wait)}")
+        ret = cfg.user.return_distance
         if ret is not None and _checks.is_concrete(ret) and not float(ret) >= far_w:
-            raise ValueError(f"user_return ({ret}) must be at least user_wait's far "
+            raise ValueError(f"user.return_distance ({ret}) must be at least user.wait's far "
                              f"distance ({far_w}): the user waits before walking back")
     W, H = (float(x) for x in cfg.room)
-    nx, ny = int((W - 2 * cfg.wall_margin) // _CELL), int((H - 2 * cfg.wall_margin) // _CELL)
+    wall = cfg.forces.wall_margin
+    nx, ny = int((W - 2 * wall) // _CELL), int((H - 2 * wall) // _CELL)
     if W <= 0 or H <= 0 or nx * ny < P + 3:
         raise ValueError(f"room {cfg.room} is too small for {P} people")
     gx = (jnp.arange(nx, dtype=dtype) - 0.5 * (nx - 1)) * _CELL
@@ -288,13 +318,13 @@ def init(key: Array, cfg: PedestrianConfig, num_people: int,
     n = cells.shape[0]
     u = jax.random.uniform(key, (2 * n + P * (4 + _GOAL_UNIFORMS),), dtype)
     u_user, u_cells, u = u[:n], u[n:2 * n], u[2 * n:].reshape(P, 4 + _GOAL_UNIFORMS)
-    free = _free(cells, cfg, cfg.person_radius + 0.2, dtype)
+    free = _free(cells, cfg, cfg.forces.person_radius + 0.2, dtype)
     # The user: well inside the room, facing the centre, the robot's start free behind.
-    margin = cfg.robot_start_distance + 1.0
+    margin = cfg.user.robot_start_distance + 1.0
     inner = ((jnp.abs(cells[:, 0]) <= 0.5 * W - margin) & (jnp.abs(cells[:, 1]) <= 0.5 * H - margin)
              & (jnp.linalg.norm(cells, axis=-1) > 0.5))
     facing = _unit(-cells)[0]
-    behind = cells - cfg.robot_start_distance * facing
+    behind = cells - cfg.user.robot_start_distance * facing
     user_ok = free & inner & _free(behind, cfg, cfg.robot_radius + 0.1, dtype)
     user_score = jnp.where(user_ok, u_user, -1.0)
     iu = jnp.argmax(user_score)
@@ -338,7 +368,7 @@ def robot_start(cfg: PedestrianConfig, state: PedestrianState) -> Array:
     """
     h = state.heading[0]
     e = jnp.stack([jnp.cos(h), jnp.sin(h)])
-    return jnp.concatenate([state.pos[0] - cfg.robot_start_distance * e, h[None]])
+    return jnp.concatenate([state.pos[0] - cfg.user.robot_start_distance * e, h[None]])
 
 
 def _repulsion(pos, others, heading, strength, range_, reach, anisotropy, keep_right, weight):
@@ -383,27 +413,27 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
     _checks.check_shape("robot_pose", robot_pose, (3,), "x, y, theta")
     dtype = state.pos.dtype
     P = state.pos.shape[0]
-    g = cfg.gait
+    g, sf = cfg.gait, cfg.forces
     u = jax.random.uniform(key, (P, 4 + _GOAL_UNIFORMS), dtype)
     u_stop, u_rand, u_len, u_speed = u[:, 0], u[:, 1], u[:, 2], u[:, 3]
     robot_xy = jnp.asarray(robot_pose, dtype)[:2]
     pos, vel, mask = state.pos, state.vel, state.mask
 
     # --- waypoints and stops ---------------------------------------------------------------
-    arrived = jnp.linalg.norm(state.goal - pos, axis=-1) < cfg.waypoint_tolerance
+    arrived = jnp.linalg.norm(state.goal - pos, axis=-1) < cfg.walks.waypoint_tolerance
     replan = (arrived | (state.goal_timer <= 0.0)) & mask
     user_dir = jnp.where(jnp.linalg.norm(vel[0]) > g.stand_speed, _unit(vel[0])[0],
                          jnp.stack([jnp.cos(state.heading[0]), jnp.sin(state.heading[0])]))
     new_goal, new_cross = _sample_goals(u[:, 4:], cfg, pos, pos[0], user_dir, dtype)
     goal = jnp.where(replan[:, None], new_goal, state.goal)
     crossing = jnp.where(replan, new_cross, state.crossing)
-    lo, hi = cfg.speed_range
+    lo, hi = cfg.walks.speed_range
     speed = jnp.where(replan, lo + (hi - lo) * u_speed,
                       state.speed)
     walking = state.stop_timer <= 0.0
-    start_stop = walking & ((arrived & (u_stop < cfg.stop_prob))
-                            | (u_rand < cfg.stop_rate * dt))
-    d0, d1 = cfg.stop_duration
+    start_stop = walking & ((arrived & (u_stop < cfg.walks.stop_prob))
+                            | (u_rand < cfg.walks.stop_rate * dt))
+    d0, d1 = cfg.walks.stop_duration
     duration = d0 + (d1 - d0) * u_len
     stop_timer = jnp.where(start_stop, duration, state.stop_timer - dt)
     goal_timer = jnp.where(replan, _goal_time(goal, pos, speed),
@@ -412,59 +442,59 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
     # --- social forces ---------------------------------------------------------------------
     to_goal, _ = _unit(goal - pos)
     preferred = jnp.where((stop_timer > 0.0)[:, None], 0.0, speed[:, None] * to_goal)
-    if cfg.user_wait is not None:
-        near_w, far_w = cfg.user_wait
+    if cfg.user.wait is not None:
+        near_w, far_w = cfg.user.wait
         gap = jnp.linalg.norm(pos[0] - robot_xy)
         slow = jnp.clip((far_w - gap) / (far_w - near_w), 0.0, 1.0)
         preferred = preferred.at[0].multiply(slow)
-        if cfg.user_return is not None:
-            back = jnp.clip((gap - cfg.user_return) / 0.5, 0.0, 1.0)
+        if cfg.user.return_distance is not None:
+            back = jnp.clip((gap - cfg.user.return_distance) / 0.5, 0.0, 1.0)
             to_robot, _ = _unit(robot_xy - pos[0])
             preferred = preferred.at[0].add(back * speed[0] * to_robot)
-    force = (preferred - vel) / cfg.relax_time
+    force = (preferred - vel) / sf.relax_time
     pair = mask[:, None] & mask[None, :] & ~jnp.eye(P, dtype=bool)
-    force += _repulsion(pos, pos[None], state.heading, cfg.social_strength, cfg.social_range,
-                        2.0 * cfg.person_radius, cfg.anisotropy, cfg.keep_right, pair)
-    force += _repulsion(pos, robot_xy[None, None], state.heading, cfg.robot_strength,
-                        cfg.robot_range, cfg.person_radius + cfg.robot_radius, cfg.anisotropy,
-                        cfg.keep_right, jnp.ones((P, 1), dtype))
+    force += _repulsion(pos, pos[None], state.heading, sf.social_strength, sf.social_range,
+                        2.0 * sf.person_radius, sf.anisotropy, sf.keep_right, pair)
+    force += _repulsion(pos, robot_xy[None, None], state.heading, sf.robot_strength,
+                        sf.robot_range, sf.person_radius + cfg.robot_radius, sf.anisotropy,
+                        sf.keep_right, jnp.ones((P, 1), dtype))
     obs = _obstacles(cfg, dtype)
     if obs.shape[0]:
-        force += _repulsion(pos, obs[None, :, :2], state.heading, cfg.social_strength,
-                            cfg.social_range, obs[:, 2] + cfg.person_radius, cfg.anisotropy,
-                            cfg.keep_right, jnp.ones((P, obs.shape[0]), dtype))
+        force += _repulsion(pos, obs[None, :, :2], state.heading, sf.social_strength,
+                            sf.social_range, obs[:, 2] + sf.person_radius, sf.anisotropy,
+                            sf.keep_right, jnp.ones((P, obs.shape[0]), dtype))
     half = jnp.asarray([0.5 * cfg.room[0], 0.5 * cfg.room[1]], dtype)
-    near = jnp.exp(jnp.minimum((cfg.person_radius - (half - pos)) / cfg.wall_range, 10.0))
-    far = jnp.exp(jnp.minimum((cfg.person_radius - (half + pos)) / cfg.wall_range, 10.0))
-    force += cfg.wall_strength * (far - near)
+    near = jnp.exp(jnp.minimum((sf.person_radius - (half - pos)) / sf.wall_range, 10.0))
+    far = jnp.exp(jnp.minimum((sf.person_radius - (half + pos)) / sf.wall_range, 10.0))
+    force += sf.wall_strength * (far - near)
 
     new_vel = vel + dt * force
     _, v_norm = _unit(new_vel)
-    new_vel = new_vel * jnp.minimum(1.0, cfg.max_speed / v_norm)[:, None]
+    new_vel = new_vel * jnp.minimum(1.0, sf.max_speed / v_norm)[:, None]
     new_pos = pos + dt * new_vel
 
     # --- hard constraints: separation, furniture, robot, walls -----------------------------
     for _ in range(2):
         n, d = _unit(new_pos[:, None, :] - new_pos[None])
-        depth = jnp.where(pair, jnp.maximum(cfg.min_separation - d, 0.0), 0.0)
+        depth = jnp.where(pair, jnp.maximum(sf.min_separation - d, 0.0), 0.0)
         new_pos = new_pos + 0.5 * jnp.sum(depth[..., None] * n, 1)
         if obs.shape[0]:
-            new_pos = _push_out(new_pos, obs[:, :2], obs[:, 2] + cfg.person_radius,
+            new_pos = _push_out(new_pos, obs[:, :2], obs[:, 2] + sf.person_radius,
                                 jnp.ones((P, obs.shape[0]), bool))
-        new_pos = _push_out(new_pos, robot_xy[None], cfg.person_radius + cfg.robot_radius,
+        new_pos = _push_out(new_pos, robot_xy[None], sf.person_radius + cfg.robot_radius,
                             jnp.ones((P, 1), bool))
-        new_pos = jnp.clip(new_pos, -half + cfg.wall_margin, half - cfg.wall_margin)
+        new_pos = jnp.clip(new_pos, -half + sf.wall_margin, half - sf.wall_margin)
     new_pos = jnp.where(mask[:, None], new_pos, pos)
     new_vel = (new_pos - pos) / dt
     _, v_norm = _unit(new_vel)
-    new_vel = new_vel * jnp.minimum(1.0, cfg.max_speed / v_norm)[:, None]
+    new_vel = new_vel * jnp.minimum(1.0, sf.max_speed / v_norm)[:, None]
 
     # --- heading and gait phase ------------------------------------------------------------
     moving = v_norm > g.stand_speed
     turn = wrap(jnp.arctan2(new_vel[:, 1], new_vel[:, 0]) - state.heading)
-    max_turn = cfg.max_turn_rate * dt
+    max_turn = sf.max_turn_rate * dt
     heading = wrap(state.heading + jnp.where(moving, jnp.clip(turn, -max_turn, max_turn), 0.0))
-    s = jnp.minimum(v_norm, cfg.max_speed)
+    s = jnp.minimum(v_norm, sf.max_speed)
     phase = jnp.mod(state.phase + jnp.where(moving, jnp.pi * cadence(s, g) * dt, 0.0),
                     2.0 * jnp.pi)
     new = PedestrianState(pos=new_pos.astype(dtype), vel=new_vel.astype(dtype),

@@ -9,7 +9,8 @@ from sims.following import pedestrians as pd
 
 OBSTACLES = np.array([[-2.5, 1.6, 1.0], [2.5, -1.6, 1.0]])
 # The robot stands still in these scenarios, so the user does not wait for it.
-CFG = pd.PedestrianConfig(obstacles=OBSTACLES, distractors=4, user_wait=None)
+CFG = pd.PedestrianConfig(obstacles=OBSTACLES, distractors=4,
+                          user=pd.UserBehaviour(wait=None))
 ROBOT = jnp.array([0.0, 0.5, 0.0])
 STEPS = 400  # 40 s at 10 Hz
 KEYS = 8
@@ -39,15 +40,17 @@ def _single(cfg, pos, goal, heading=0.0, steps=STEPS, robot=(50.0, 50.0, 0.0), d
                                                        jnp.asarray(robot, dtype), steps, 0.05)[1])
 
 
-CORRIDOR = pd.PedestrianConfig(room=(40.0, 6.0), distractors=0, speed_range=(1.2, 1.2),
-                               stop_prob=0.0, stop_rate=0.0, cross_prob=0.0, user_wait=None)
+CORRIDOR = pd.PedestrianConfig(room=(40.0, 6.0), distractors=0,
+                               walks=pd.Walks(speed_range=(1.2, 1.2), stop_prob=0.0,
+                                              stop_rate=0.0, cross_prob=0.0),
+                               user=pd.UserBehaviour(wait=None))
 
 
 def test_the_user_waits_for_a_still_robot():
     # Walking away from a robot that does not move, the user slows down past 3 m and stands
     # at 4.5 m (plus what the 0.5 s relaxation to the preferred velocity carries them); without
     # waiting they walk on.
-    cfg = CORRIDOR._replace(user_wait=(3.0, 4.5), user_return=None)
+    cfg = CORRIDOR._replace(user=pd.UserBehaviour(wait=(3.0, 4.5), return_distance=None))
     tr = _single(cfg, (-15.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
     gap = tr.pos[:, 0, 0] + 16.0
     assert 4.0 < gap.max() <= 4.6
@@ -58,9 +61,9 @@ def test_the_user_waits_for_a_still_robot():
 
 
 def test_the_user_comes_back_to_a_robot_that_lost_them():
-    # Beyond user_return the user walks back toward the robot: starting 7 m from a still
+    # Beyond user.return_distance the user walks back toward the robot: starting 7 m from a still
     # robot, they end standing within half a metre of 4 m, inside the RGB-D range.
-    cfg = CORRIDOR._replace(user_wait=(3.0, 4.0), user_return=4.0)
+    cfg = CORRIDOR._replace(user=pd.UserBehaviour(wait=(3.0, 4.0), return_distance=4.0))
     tr = _single(cfg, (-9.0, 0.0), (15.0, 0.0), robot=(-16.0, 0.0, 0.0))
     gap = tr.pos[:, 0, 0] + 16.0
     assert gap[0] > 6.5
@@ -74,17 +77,18 @@ def test_the_user_comes_back_to_a_robot_that_lost_them():
 
 @pytest.mark.parametrize("wait, ret", [((4.0, 3.0), None), ((3.0, 4.5), 4.0)])
 def test_bad_waiting_distances_are_refused(wait, ret):
-    with pytest.raises(ValueError, match="user_wait|user_return"):
-        pd.init(jax.random.PRNGKey(0), CORRIDOR._replace(user_wait=wait, user_return=ret), 1)
+    with pytest.raises(ValueError, match="user.wait|user.return_distance"):
+        pd.init(jax.random.PRNGKey(0), CORRIDOR._replace(
+            user=pd.UserBehaviour(wait=wait, return_distance=ret)), 1)
 
 
 def test_people_stay_inside_the_room_and_out_of_the_furniture(crowd):
     _, tr = crowd
     m = tr.mask
-    half = np.array(CFG.room) / 2 - CFG.wall_margin
+    half = np.array(CFG.room) / 2 - CFG.forces.wall_margin
     assert np.all(np.abs(tr.pos[m]) <= half + 1e-4)
     d = np.linalg.norm(tr.pos[..., None, :] - OBSTACLES[:, :2], axis=-1) - OBSTACLES[:, 2]
-    assert d[m].min() > CFG.person_radius - 1e-3
+    assert d[m].min() > CFG.forces.person_radius - 1e-3
     assert np.all(np.isfinite(tr.pos))
 
 
@@ -101,7 +105,7 @@ def test_speeds_are_pedestrian_speeds_and_people_walk(crowd):
     _, tr = crowd
     speed = np.linalg.norm(tr.vel, axis=-1)
     m = tr.mask
-    assert speed[m].max() <= CFG.max_speed + 1e-4
+    assert speed[m].max() <= CFG.forces.max_speed + 1e-4
     walking = m & (tr.stop_timer <= 0)
     assert 0.5 < np.median(speed[walking]) < 1.5
     assert np.all(speed[~m] == 0)
@@ -197,7 +201,7 @@ def test_people_walk_around_the_robot():
     """A walker whose straight path runs through the robot keeps clear of it and gets past."""
     tr = _single(CORRIDOR, (-8.0, 0.0), (8.0, 0.0), robot=(0.0, 0.0, 0.0))
     d = np.linalg.norm(tr.pos[:, 0], axis=-1)
-    assert d.min() >= CORRIDOR.robot_radius + CORRIDOR.person_radius - 1e-3
+    assert d.min() >= CORRIDOR.robot_radius + CORRIDOR.forces.person_radius - 1e-3
     assert tr.pos[:, 0, 0].max() > 5.0
     # Social avoidance, not only the hard projection: the path bends before contact.
     assert np.abs(tr.pos[:, 0, 1]).max() > 0.3
@@ -217,7 +221,7 @@ def test_bad_input_raises_clearly():
     with pytest.raises(ValueError, match="obstacles"):
         pd.init(jax.random.PRNGKey(0), CFG._replace(obstacles=np.zeros((2, 2))), 6)
     with pytest.raises(ValueError, match="speed_range"):
-        pd.init(jax.random.PRNGKey(0), CFG._replace(speed_range=(0.5, 2.0)), 6)
+        pd.init(jax.random.PRNGKey(0), CFG._replace(walks=pd.Walks(speed_range=(0.5, 2.0))), 6)
     st = pd.init(jax.random.PRNGKey(0), CFG, 6)
     with pytest.raises(ValueError, match="robot_pose"):
         pd.step(jax.random.PRNGKey(0), CFG, st, jnp.zeros(2), 0.1)
