@@ -10,6 +10,7 @@ import sys
 import textwrap
 from contextlib import redirect_stdout
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -194,10 +195,14 @@ def test_laser_only_without_odometry_tracks_in_the_robot_frame(recording):
     assert got.user_found.mean() > 0.5 and np.median(err) < 0.3
 
 
-def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(written, tmp_path):
+def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(recording, written, tmp_path):
     # The replay path never touches MJX: in a fresh interpreter where `import mujoco` fails,
-    # the command line still replays the bag and scores it.
+    # the command line still replays the bag and scores it. (The same command as the CLI test
+    # above, so that the persistent compilation cache can serve it.)
+    sc, _, (_, _, det) = recording
     out = tmp_path / "out"
+    furniture = tmp_path / "furniture.txt"
+    np.savetxt(furniture, _furniture(sc))
     script = textwrap.dedent(f"""
         import sys
         class NoMuJoCo:
@@ -207,7 +212,9 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(written, tmp_pat
         sys.meta_path.insert(0, NoMuJoCo())
         from sims import cli
         assert cli.main(["track", "--bag", {str(written["ros1"])!r}, "--laser-topic", "/scan",
-                         "--odom-topic", "/odom", "--estimator", "jpda", "--chunk", "16",
+                         "--odom-topic", "/odom", "--detections-topic", "/people",
+                         "--max-detections", "{det.xy.shape[1]}", "--estimator", "gnn",
+                         "--chunk", "{CHUNK}", "--static-points", {str(furniture)!r},
                          "--out", {str(out)!r}]) == 0
         assert cli.main(["evaluate", "--gt", {str(out / "tracks.csv")!r},
                          "--tracks", {str(out / "tracks.csv")!r}]) == 0
@@ -217,7 +224,10 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(written, tmp_pat
         except ImportError:
             print("no mujoco")
     """)
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    cache = jax.config.jax_compilation_cache_dir
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_ENABLE_X64="1",
+               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0.5",
+               **({"JAX_COMPILATION_CACHE_DIR": cache} if cache else {}))
     res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          env=env, cwd=os.path.dirname(os.path.dirname(os.path.dirname(
                              os.path.abspath(__file__)))), timeout=600)
