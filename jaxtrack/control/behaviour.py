@@ -71,7 +71,9 @@ class FollowingConfig:
         returns this close to the user's estimate are not obstacles to it (m).
       reverse: allow driving backwards (the laser sees 240 deg to the front, nothing behind: by
         default the robot never reverses, and turns instead).
-      route: steer along routes of the known map when the straight line is blocked;
+      route: steer along routes of the known map when the straight line is blocked (blocked
+        straight lines made most of the following error; measurements: docs/design_notes.md,
+        "Person following: routes around the furniture");
         route_cell: the route grid (m); route_clearance: distance (m) from furniture below
         which the straight line counts as blocked; the route's cells keep
         ``robot_radius + safety_margin + route_margin`` from furniture and walls.

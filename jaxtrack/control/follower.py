@@ -227,7 +227,8 @@ def control(params: Params, person_pos: Array, person_vel: Array | None,
       singular_eps: :math:`\epsilon` of the regularised :math:`1 / P_{fm,1}` (m).
       reverse: whether the robot may drive backwards. With ``False`` the backward speed is
         dropped before the velocity limits: clipping it after them would leave the turn scaled
-        down with it (a robot whose user had walked past it turned at about 0.1 rad/s).
+        down with it, and a robot whose user had walked past it would barely turn
+        (measurements: docs/design_notes.md, "Person following: forward-only turns").
 
     Returns:
       u: [2] (v, omega).

@@ -3,8 +3,9 @@
 Tracking works with tiny matrices (2-8 states) batched over thousands of episodes. XLA's CPU
 `cholesky` and `triangular_solve` run one LAPACK call per matrix under `vmap`, which costs far
 more than the arithmetic; below ``UNROLL_MAX`` we unroll both at trace time into scalar
-operations on the batch axis, which XLA fuses into a single loop (about 3.5x faster for a 4x4
-Cholesky on 1000 matrices, see ``benchmarks/filters.py``). Larger matrices use LAPACK.
+operations on the batch axis, which XLA fuses into a single loop (faster on batches of small
+matrices: see ``benchmarks/filters.py``, and docs/design_notes.md, "Gaussian filters: unrolled
+small-matrix linear algebra"). Larger matrices use LAPACK.
 """
 
 from __future__ import annotations

@@ -148,8 +148,9 @@ def _weights(log_weights):
 def _cdf(w):
     """Normalised CDF [N] of linear weights ``w`` [N] (summing to about one).
 
-    A pairwise (tree) prefix sum: on XLA:CPU it is about 2.5x faster than ``jnp.cumsum`` and
-    its rounding error grows as log N instead of N. Rounding can leave ``cdf[-1]`` slightly
+    A pairwise (tree) prefix sum: on XLA:CPU it is faster than ``jnp.cumsum`` (measurements:
+    docs/design_notes.md, "Particle filter: a pairwise prefix sum for the CDF") and its
+    rounding error grows as log N instead of N. Rounding can leave ``cdf[-1]`` slightly
     off 1; the rescale lets every u in [0, 1) find an index.
     """
     cdf = lax.associative_scan(jnp.add, w)
@@ -498,8 +499,8 @@ def filter(key: Array, init: ParticleSet, zs, transition: Callable, log_likeliho
       masks: optional [T] bools.
       angle_dims: state components reported with circular means and wrapped deviations.
       return_covs: also return the weighted covariances [T, n, n]; ``False`` skips their
-        computation (about a tenth of a step with 1000 particles in 4-D) and sets ``covs`` to
-        None.
+        computation (a noticeable part of a step; measurements: docs/design_notes.md,
+        "Particle filter: skipping the covariances") and sets ``covs`` to None.
       return_particles: also return all particles [T, N, n] (memory: T N n floats).
 
     The carried log weights are normalised once, before the scan; each step then computes the

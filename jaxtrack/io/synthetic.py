@@ -246,8 +246,9 @@ def _sequence(key, pos, mask, model, region, pose, M):
     region_given = region is not None
     region = _bounding_box(pos, mask) if region is None else jnp.asarray(region, pos.dtype)
     T, P = mask.shape
-    # One draw for the whole sequence: per-frame keys (split, then a draw each) compile three
-    # times slower, Threefry being most of the compile time.
+    # One draw for the whole sequence: per-frame keys (split, then a draw each) compile much
+    # slower, Threefry being most of the compile time (measurements: docs/design_notes.md,
+    # "Synthetic detections: one random draw per sequence").
     u = jax.random.uniform(key, (T, _num_uniforms(P, M)), pos.dtype)
     frame = functools.partial(_frame, model=model, region=region, M=M,
                               region_given=region_given)

@@ -69,9 +69,8 @@ class LegParams(NamedTuple):
         this (radians) are not one person (pi / 2).
       convex_only: 1.0 to require the fitted circle's centre to lie farther from the sensor
         than the segment's mean point (a leg bulges towards the laser). Off by default: on
-        scans of 2.5-7 cm posts before a wall with 1 cm noise it kept 94 % of the post
-        candidates and removed 54 % of the wall-piece candidates (short wall pieces between
-        shadows, about one per scan).
+        noisy scans it also drops some thin posts and leaves many short wall pieces
+        (measurements: docs/design_notes.md, "Leg detector: no convexity test by default").
     """
 
     max_range: float = 5.6

@@ -85,7 +85,8 @@ class HeadingConfig:
       gain: smoothing gain in (0, 1] (the seed smooths but prints no factor).
       turn_prediction: predict the heading with the commanded turn, theta + omega dt, before
         the PCA update (the seed has none: False). The smoothed heading otherwise lags a
-        turning robot (docs/design_notes.md).
+        turning robot (measurements: docs/design_notes.md, "Humanoid: turn prediction of the
+        PCA heading").
     """
 
     pca_radius: float = 0.25

@@ -410,7 +410,8 @@ def robot_frame_kf(config: RobotFrameKFConfig = RobotFrameKFConfig()) -> Estimat
 
     ``params(dt=0.1, q=4.0, q_robot=0.5, laser_std=0.1, odom_std=0.05, gate_prob=0.99999,
     dtype=float32)``: ``q`` is the person's acceleration variance (a single target gated on
-    its own covariance needs room for stops and turns, see docs/design_notes.md).
+    its own covariance needs room for stops and turns; measurements: docs/design_notes.md,
+    "Person following: the robot-frame Kalman filter's acceleration variance").
 
     Example:
       >>> est = robot_frame_kf()

@@ -43,7 +43,8 @@ class SensorsConfig:
         default an unpaired leg is a person too, with segments up to 0.4 m wide: a standing
         person's legs often merge into one segment, and a walking person seen along their path
         hides one leg behind the other; the map filter removes the furniture legs and wall
-        pieces that would otherwise become people (docs/design_notes.md).
+        pieces that would otherwise become people (measurements: docs/design_notes.md,
+        "Person following: single legs and wide leg segments").
       max_segments, max_laser_people: leg-detector capacities.
       map_filter: drop laser people within ``map_filter_radius`` of a furniture leg, or within
         ``wall_filter_distance`` of a wall, of the robot's map (the robot is localised in its

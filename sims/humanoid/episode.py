@@ -1,34 +1,27 @@
 r"""The closed loop of seed 000, one episode as a pure function of (key, params).
 
-Every control period (``frame_dt``, the seed's ~4 Hz):
+Every control period (``frame_dt``, the seed's ~4 Hz) is five stages:
 
-1. the true gait state is posed (`gait.qpos`), MJX kinematics gives the geom poses, and the
-   zenithal camera renders the robot's window (`sensor.robot_point_cloud`: the cloud's
-   derivative moves rigidly with the torso, see `sensor`), adds Kinect noise, back-projects
-   and removes the floor; the ``max_points`` highest points are kept (a fixed
-   capacity: the robot shows about 40 points at 80 x 60);
-2. the tracker updates its estimate (x, y, theta):
-
-   - ``"pf"``: the seed's tracker, SIR over (x, y) with the point-count likelihood rotated by
-     the last heading, then the PCA heading with the continuity window
-     (`jaxtrack.perception.depth`);
-   - ``"pf3"``: SIR over (x, y, theta) with the same likelihood (heading random walk); the
-     likelihood is symmetric under a half turn, so the heading particles are folded to the
-     half-circle of the previous estimate (`depth.fold_half_turn`) before their circular mean,
-     and the heading particles are propagated with the turn rate commanded over the last frame;
-   - ``"ukf"``: a constant-velocity UKF on the centroid of the points near the prediction, with
-     the PCA heading;
-
-3. the reach controller (`jaxtrack.control.pose`, Algorithm 1 with the 5 cm / 10 deg latched
-   stop) turns the estimate into a body-frame velocity and turn rate; the stop region is
-   tested on the estimate averaged over the last three step cycles (see "Sway" below);
-4. the walking pattern generator (`gait`) executes it for ``frame_dt`` in sub-steps.
+1. **world step** (world frame): the walking pattern generator (`gait`) executes the last
+   command for ``frame_dt`` in sub-steps (nothing before the first command);
+2. **sense**: the true gait state is posed (`gait.qpos`), MJX kinematics gives the geom poses,
+   and the zenithal camera renders the robot's window (`sensor.robot_point_cloud`: the cloud's
+   derivative moves rigidly with the torso, see `sensor`), adds Kinect noise, back-projects and
+   removes the floor; the ``max_points`` highest points are kept (a fixed capacity: the robot
+   shows about 40 points at 80 x 60);
+3. **estimate**: the tracker (`jaxtrack.tracking.humanoid`: ``"pf"``, the seed's SIR over
+   (x, y) with the PCA heading; ``"pf3"``, SIR over (x, y, theta); ``"ukf"``, a UKF on the
+   centroid) updates its pose estimate (x, y, theta);
+4. **behave**: the reach controller (`jaxtrack.control.pose`, Algorithm 1 with the 5 cm /
+   10 deg latched stop) turns the estimate into a body-frame velocity and turn rate; the stop
+   region is tested on the estimate averaged over the last three step cycles (see "Sway");
+5. **record**: the true and estimated poses and the stop flags of the frame.
 
 Sway. The CoM of a walking biped sways sideways by about +-3 cm at the step frequency (and the
-torso yaw by +-3 deg). Tested on the instantaneous estimate, the 5 cm stop fires when a sway
-extreme first grazes the region while the robot's mean position is still 2-3 cm further, and
-the true CoM at that instant is as often just outside. The seed's ground truth is hand-marked
-positions smoothed by a fitted polynomial (section 5.4), which does not hold the sway either.
+torso yaw by +-3 deg): tested on the instantaneous estimate, the 5 cm stop fires at a sway
+extreme (measurements: docs/design_notes.md, "Humanoid: the stop rule on step-cycle averages
+(sway)"). The seed's ground truth is hand-marked positions smoothed by a fitted polynomial
+(section 5.4), which does not hold the sway either.
 So the stop rule and the success criterion both use sway-free poses, with the seed's
 5 cm / 10 deg thresholds unchanged: the controller stops when the *estimate averaged over
 whole step cycles* (``sway_frames`` frames, a multiple of the left-right sway period
@@ -37,17 +30,10 @@ periods, 12 frames, by default, see "Failures") is in the region, and an episode
 the *true pose averaged over the same frames* is. The command itself still follows the latest
 estimate (no added lag). ``sway_frames=1`` restores the instantaneous rule and criterion.
 
-Failures. With pf on the seed tasks (480 episodes, one-cycle average) the ~5 % failures are
-neither timeouts (every episode stopped, 95 % within 135 frames, all within 160), heading
-flips nor sway: the stop fires when the averaged estimate first enters the 5 cm / 10 deg
-region, where the robot creeps in at lambda_x * 5 cm = 5 mm/s, so the true pose is then at
-the threshold give or take the averaged estimate's error, and the *first* entry selects an
-error pointing inward (true distance 5.0-5.8 cm, or true heading 10.1-11.9 deg in one failure
-out of six). Halving the tracker's error with a sharper likelihood (``temperature=3``) also
-removes its lag behind the robot and leaves the rate unchanged (94.8 -> 94.2 %); averaging the
-stop pose over more whole sway periods lowers its noise without adding a bias: 1 / 2 / 3
-periods gave 94.8 / 95.4 / 96.0 % success and 115 / 117 / 119 median frames to stop (seed:
-110-120) on the same keys.
+Failures. Failed episodes mostly stop when the averaged estimate first enters the region, with
+the true pose just outside it; averaging the stop pose over more whole sway periods lowers its
+noise without a bias, hence three (measurements: docs/design_notes.md, "Humanoid: three sway
+periods in the stop average (failures)").
 
 `make_episode` returns ``episode(key, params) -> metrics`` for `jaxtrack.montecarlo.evaluate`;
 ``params`` is an `EpisodeParams` (task and tunable floats, traced: new tasks do not recompile).
@@ -146,9 +132,12 @@ def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
       target: [3] target pose; start: [3] initial pose (both finite; headings in rad).
       lambda_x, lambda_theta: controller gains (1/s, > 0).
       position_noise: tracker propagation std (m, > 0); 0.035 follows the CoM sway (up to 7 cm
-        between two 4 Hz frames; docs/design_notes.md).
+        between two 4 Hz frames; measurements: docs/design_notes.md, "Humanoid: tracker
+        propagation noise 0.035 m").
       temperature: None for the seed's weight, or T > 0 for the tempered weight exp(n / T),
-        stored as the traced ``log_temperature``.
+        stored as the traced ``log_temperature``; the seed's weight leaves the estimate near the
+        visible points' centroid, which the camera pulls toward itself (measurements:
+        docs/design_notes.md, "Humanoid: the likelihood temperature").
 
     Example:
       >>> params = make_params([1.0, 0.0, -math.pi / 2])

@@ -1,13 +1,13 @@
 r"""Walking pattern generator: linear inverted pendulum with footstep placement, stochastic
 execution, and leg inverse kinematics (seed 000, section 4).
 
-Why kinematic. Full contact physics of a walking humanoid runs at 12k-30k env-steps/s on this
-CPU (measured for humanoid-sized MJX models) against about 900k kinematic poses/s, and would need
-a trained walking policy. The seed's robot walks with a walking pattern generator too (a
-preview QP on the LIPM); we keep its *observable* behaviour — a dynamically consistent CoM that
-sways sideways at the step frequency, a torso that wobbles in yaw, discrete noisy footsteps,
-walking in place near the target — and pose the MJX model kinematically (``qpos`` from this
-module, geom poses from ``mjx.kinematics``).
+Why kinematic. Full contact physics of a walking humanoid runs far slower than kinematic posing
+(measurements: docs/design_notes.md, "Humanoid: a kinematic walking pattern generator"), and
+would need a trained walking policy. The seed's robot walks with a walking pattern generator
+too (a preview QP on the LIPM); we keep its *observable* behaviour — a dynamically consistent
+CoM that sways sideways at the step frequency, a torso that wobbles in yaw, discrete noisy
+footsteps, walking in place near the target — and pose the MJX model kinematically (``qpos``
+from this module, geom poses from ``mjx.kinematics``).
 
 Model. The CoM moves at constant height :math:`z_c` over the support foot :math:`p` (LIPM):
 :math:`\ddot c = \omega^2 (c - p)`, :math:`\omega = \sqrt{g / z_c}`, integrated in closed form

@@ -25,20 +25,19 @@ looks along a fixed ray, so the pathwise derivative of its back-projected point 
 *depth* along that ray: when the robot slides sideways, a point on its flat head or shoulders
 does not move at all (the head's top is level), and the cloud's true motion — pixels at the
 silhouette switching between floor and robot — is a discontinuity that automatic
-differentiation never sees. Measured on a 64-particle tracker frame (mean over 256 keys): the
-derivative of the blob centroid with respect to the robot's x was 0.04 by AD against 0.9-1.1
-by central differences, and that of the PCA heading with respect to the robot's yaw 0.10
-against about 1. Through a closed loop this removes the feedback from the gradient (the
-controller seems to act on a robot that never moves) and gave gain derivatives of the wrong
-sign. The fix is a reparameterisation: the pixel grid is moved rigidly with the robot's torso
-pose :math:`T = (x, y, \psi)` in the derivative only. The geoms are rendered in the frame
-:math:`T_\delta^{-1}`, :math:`\delta = T - \perp(T)` (the identity in value), and the robot's
-points are mapped back by :math:`T_\delta`: the values are unchanged, and the derivative of
-the cloud with respect to the torso pose is the rigid motion :math:`\partial T` plus the
-pathwise derivative of the limbs *relative* to the torso. This is the exact derivative of the
-expected cloud when the grid's phase relative to the robot is uniform (a camera at a random
-sub-pixel offset: the cloud is then distributed as the same cloud moved with the robot), and
-what the robot's motion in a real camera averages to over frames and keys.
+differentiation never sees: AD then gives the blob centroid and the PCA heading a small
+fraction of their true derivatives (measurements: docs/design_notes.md, "Humanoid: the point
+cloud's derivative moves with the torso"). Through a closed loop this removes the feedback from
+the gradient (the controller seems to act on a robot that never moves), which can flip the
+sign of the gain derivatives. The fix is a reparameterisation: the pixel grid is moved rigidly with
+the robot's torso pose :math:`T = (x, y, \psi)` in the derivative only. The geoms are rendered
+in the frame :math:`T_\delta^{-1}`, :math:`\delta = T - \perp(T)` (the identity in value), and
+the robot's points are mapped back by :math:`T_\delta`: the values are unchanged, and the
+derivative of the cloud with respect to the torso pose is the rigid motion :math:`\partial T`
+plus the pathwise derivative of the limbs *relative* to the torso. This is the exact derivative
+of the expected cloud when the grid's phase relative to the robot is uniform (a camera at a
+random sub-pixel offset: the cloud is then distributed as the same cloud moved with the robot),
+and what the robot's motion in a real camera averages to over frames and keys.
 """
 
 from __future__ import annotations
