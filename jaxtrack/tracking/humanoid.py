@@ -213,6 +213,25 @@ def _temperature(params: DepthTrackerParams, dtype):
         dtype)
 
 
+def _uniform(x):
+    """Particles [N, d] with equal normalised log-weights."""
+    n = x.shape[0]
+    return particle.ParticleSet(x, jnp.full((n,), -math.log(n), x.dtype))
+
+
+def _weighting(model, smooth):
+    """(resampler, ``loglik(params, dtype) -> (z, x) -> log weights``) of the particle
+    trackers: the seed's SIR and hard counts, or the differentiable variant's."""
+    resampler = particle.systematic if smooth is None else smooth.resampler()
+    softness = None if smooth is None else smooth.softness
+
+    def loglik(params, dtype):
+        t = _temperature(params, dtype)
+        return lambda z, x: depth.log_likelihood(z, x, model, softness=softness, temperature=t)
+
+    return resampler, loglik
+
+
 def _pca(cfg: HeadingConfig, dt, points, mask, centre, prev, turn):
     if cfg.turn_prediction:
         prev = wrap(prev + turn * dt)
@@ -233,16 +252,12 @@ def depth_pf(config: DepthPFConfig = DepthPFConfig(), dt: float = 0.25,
     Example:
       >>> est = depth_pf(DepthPFConfig(heading=HeadingConfig(turn_prediction=True)))
     """
-    n, model = config.num_particles, config.model
-    resampler = particle.systematic if smooth is None else smooth.resampler()
-    softness = None if smooth is None else smooth.softness
+    n = config.num_particles
+    resampler, loglik = _weighting(config.model, smooth)
 
     def init(key, params, start) -> ParticleTrackerState:
-        dtype = start.dtype
-        eps = jax.random.normal(key, (n, 2), dtype)
-        return ParticleTrackerState(particle.ParticleSet(start[:2] + config.init_spread * eps,
-                                                         jnp.full((n,), -math.log(n), dtype)),
-                                    start[2])
+        eps = jax.random.normal(key, (n, 2), start.dtype)
+        return ParticleTrackerState(_uniform(start[:2] + config.init_spread * eps), start[2])
 
     def update(key, state: ParticleTrackerState, z: DepthScan, params: DepthTrackerParams):
         dtype = state.heading.dtype
@@ -251,9 +266,7 @@ def depth_pf(config: DepthPFConfig = DepthPFConfig(), dt: float = 0.25,
         ps, _ = particle.step(
             key, state.particles, frame,
             lambda k, x: x + sigma * jax.random.normal(k, x.shape, x.dtype),
-            lambda zz, x: depth.log_likelihood(zz, x, model, softness=softness,
-                                               temperature=_temperature(params, dtype)),
-            resampler, vectorized=True)
+            loglik(params, dtype), resampler, vectorized=True)
         position = particle.weighted_mean(ps)
         heading = _pca(config.heading, dt, z.points, z.mask, position, state.heading,
                        z.turn_rate)
@@ -270,18 +283,14 @@ def depth_pf3(config: DepthPF3Config = DepthPF3Config(), dt: float = 0.25,
     Example:
       >>> est = depth_pf3()
     """
-    n, model = config.num_particles, config.model
-    resampler = particle.systematic if smooth is None else smooth.resampler()
-    softness = None if smooth is None else smooth.softness
+    n = config.num_particles
+    resampler, loglik = _weighting(config.model, smooth)
 
     def init(key, params, start) -> ParticleTrackerState:
-        dtype = start.dtype
-        eps = jax.random.normal(key, (n, 3), dtype)
+        eps = jax.random.normal(key, (n, 3), start.dtype)
         spread = jnp.array([config.init_spread, config.init_spread, config.init_heading_spread],
-                           dtype)
-        return ParticleTrackerState(particle.ParticleSet(start + spread * eps,
-                                                         jnp.full((n,), -math.log(n), dtype)),
-                                    start[2])
+                           start.dtype)
+        return ParticleTrackerState(_uniform(start + spread * eps), start[2])
 
     def update(key, state: ParticleTrackerState, z: DepthScan, params: DepthTrackerParams):
         dtype = state.heading.dtype
@@ -296,11 +305,8 @@ def depth_pf3(config: DepthPF3Config = DepthPF3Config(), dt: float = 0.25,
             x = x + scale * jax.random.normal(k, x.shape, x.dtype)
             return x.at[:, 2].set(wrap(x[:, 2] + z.turn_rate * dt))
 
-        ps, _ = particle.step(
-            key, state.particles, frame, transition,
-            lambda zz, x: depth.log_likelihood(zz, x, model, softness=softness,
-                                               temperature=_temperature(params, dtype)),
-            resampler, vectorized=True)
+        ps, _ = particle.step(key, state.particles, frame, transition, loglik(params, dtype),
+                              resampler, vectorized=True)
         # The likelihood cannot tell theta from theta + pi: fold the heading particles to the
         # half-circle of the previous estimate (weights unchanged) so that they never split
         # between the two modes and the circular mean stays meaningful.
