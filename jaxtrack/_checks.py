@@ -73,6 +73,15 @@ def check_finite(name: str, x) -> None:
         raise ValueError(f"{name} contains NaN or inf")
 
 
+def check_probability(name: str, p) -> None:
+    """If concrete: every entry finite and in [0, 1]."""
+    if not is_concrete(p):
+        return
+    a = np.asarray(p, dtype=np.float64)
+    if not (np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(a <= 1)):
+        raise ValueError(f"{name} must be a probability in [0, 1]; got {p!r}")
+
+
 def check_options(name: str, value: Collection[str], allowed: Collection[str]) -> frozenset:
     if isinstance(value, str):
         value = (value,)

@@ -125,3 +125,14 @@ def check_noise(R, sensor, num_detections: int, m: int) -> None:
         if s.size and (s.min() < 0 or s.max() >= np.shape(R)[0]):
             raise ValueError(f"sensor indices must lie in [0, {np.shape(R)[0] - 1}]; "
                              f"got values in [{s.min()}, {s.max()}]")
+
+
+def check_frame(zs, H, n: int, meas_mask) -> tuple[int, int]:
+    """Boundary check of a frame ``zs`` [M, m] against ``H`` [m, n] and ``meas_mask`` [M];
+    returns (M, m)."""
+    _checks.check_ndim("zs", zs, 2, "[M, m] detections")
+    M, m = _checks.shape_of(zs)
+    _checks.check_shape("H", H, (m, n), "measurement matrix")
+    if meas_mask is not None:
+        _checks.check_shape("meas_mask", meas_mask, (M,), "one flag per detection slot")
+    return M, m

@@ -148,7 +148,7 @@ def gate(d2: Array, dim: int, prob: Array | float, track_mask: Array | None = No
         _checks.check_shape("track_mask", track_mask, (K,))
     if meas_mask is not None:
         _checks.check_shape("meas_mask", meas_mask, (M,))
-    _check_probability("prob", prob)
+    _checks.check_probability("prob", prob)
     d2 = jnp.asarray(d2)
     inside = d2 <= chi2_ppf(jnp.asarray(prob, d2.dtype if jnp.issubdtype(d2.dtype, jnp.floating)
                                         else jnp.result_type(float)), dim)
@@ -156,7 +156,7 @@ def gate(d2: Array, dim: int, prob: Array | float, track_mask: Array | None = No
 
 
 # ---------------------------------------------------------------------------------------------
-# Internals (shared with pda and jpda)
+# Internals
 
 
 @jax.jit
@@ -205,7 +205,7 @@ def _chi2_ppf(p, dim):
         x = -2.0 * jnp.log1p(-p)
     else:
         interior = jnp.clip(p, jnp.finfo(p.dtype).tiny, 1.0 - jnp.finfo(p.dtype).epsneg)
-        x = _metric_errors._chi2_ppf(interior, jnp.asarray(dim, p.dtype))
+        x = _metric_errors.chi2_ppf(interior, jnp.asarray(dim, p.dtype))
     x = jnp.where(p <= 0, 0.0, jnp.where(p >= 1, jnp.inf, x))
     return jnp.where(jnp.isnan(p) | (p < 0) | (p > 1), jnp.nan, x)
 
@@ -214,15 +214,6 @@ def _check_dim(dim) -> int:
     if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
         raise ValueError(f"dim must be a positive Python int (degrees of freedom); got {dim!r}")
     return int(dim)
-
-
-def _check_probability(name, p, *, closed: bool = True) -> None:
-    if not _checks.is_concrete(p):
-        return
-    a = np.asarray(p, dtype=np.float64)
-    lo_ok = np.all(a >= 0) if closed else np.all(a > 0)
-    if not (np.all(np.isfinite(a)) and lo_ok and np.all(a <= 1)):
-        raise ValueError(f"{name} must be a probability in [0, 1]; got {p!r}")
 
 
 def _check_tracks_and_detections(means, covs, zs, H, track_mask, meas_mask):

@@ -79,7 +79,7 @@ import numpy as np
 from jax import lax
 
 from jaxtrack import _checks
-from jaxtrack.association.assignment import _linear_sum_assignment
+from jaxtrack.association.assignment import linear_sum_assignment
 
 Array = jax.Array
 
@@ -262,7 +262,7 @@ def nn_jpda(beta: Array, method: str = "greedy") -> Array:
         return _nn_greedy(beta)
     tiny = jnp.finfo(beta.dtype).tiny
     cost = jnp.where(beta[:, :-1] > 0, -jnp.log(jnp.maximum(beta[:, :-1], tiny)), jnp.inf)
-    return _linear_sum_assignment(cost, -jnp.log(jnp.maximum(beta[:, -1], tiny)), None, None)
+    return linear_sum_assignment(cost, unassigned_cost=-jnp.log(jnp.maximum(beta[:, -1], tiny)))
 
 
 # ---------------------------------------------------------------------------------------------

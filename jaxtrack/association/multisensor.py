@@ -35,6 +35,7 @@ from jax import lax
 from jaxtrack import _checks
 from jaxtrack.association import detections as _detections
 from jaxtrack.association import gating, jpda, pda
+from jaxtrack.filters import _gaussian
 from jaxtrack.filters.kalman import Gaussian
 
 Array = jax.Array
@@ -98,8 +99,8 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
       ...                              clutter_density=0.05, meas_mask=mask, hard=True)
       >>> out.posterior.mean.shape    # [K, n]
     """
-    K, n = pda._check_states(states)
-    M, m = pda._check_frame(zs, H, n, meas_mask)
+    K, n = _gaussian.check_states(states)
+    M, m = _detections.check_frame(zs, H, n, meas_mask)
     if np.ndim(R) != 3:
         raise ValueError(f"R must be [S, m, m], one covariance per sensor; got shape "
                          f"{_checks.shape_of(R)}")
@@ -110,7 +111,7 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
             _checks.check_shape(name, value, (S,), "a scalar or one value per sensor")
     if track_mask is not None:
         _checks.check_shape("track_mask", track_mask, (K,), "one flag per track")
-    gating._check_probability("gate_prob", gate_prob)
+    _checks.check_probability("gate_prob", gate_prob)
     if _checks.is_concrete(gate_prob) and float(gate_prob) <= 0:
         raise ValueError(f"gate_prob must be in (0, 1]; got {gate_prob!r}")
     if method not in jpda.METHODS:
@@ -137,21 +138,24 @@ def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, 
     pd_s = jnp.broadcast_to(jnp.asarray(p_detect, dtype), (S,))
     lam_s = jnp.broadcast_to(jnp.asarray(clutter_density, dtype), (S,))
     p_gate = jnp.asarray(gate_prob, dtype)
-    threshold = gating._chi2_ppf(p_gate, m)
+    threshold = gating.chi2_ppf(p_gate, m)
 
     def one_sensor(state, s):
         mask_s = present & (sensor == s)
-        inn = gating._innovations(state.mean, state.cov, zs, H, R, sensor, track_mask, mask_s)
+        inn = gating.innovations(state.mean, state.cov, zs, H, R, sensor=sensor,
+                                 track_mask=track_mask, meas_mask=mask_s)
         gated = inn.valid & (inn.d2 <= threshold)
         log_g = jnp.where(gated, inn.log_likelihood - jnp.log(p_gate), -jnp.inf)
-        beta, info = jpda._jpda_marginals(log_g, pd_s[s] * p_gate, lam_s[s], track_mask, mask_s,
-                                          method, True, max_cluster_tracks, 1e-9, 200)
+        beta, info = jpda.jpda_marginals(log_g, pd_s[s] * p_gate, lam_s[s], track_mask, mask_s,
+                                         method, log=True, max_cluster_tracks=max_cluster_tracks,
+                                         lbp_tol=1e-9, lbp_max_iter=200, return_info=True)
         if hard:
-            col = jpda._nn_greedy(beta)
-            post, _ = pda._nn_update(state, zs, col, H, R, sensor, track_mask)
+            col = jpda.nn_jpda(beta)
+            post, _ = pda.nn_update(state, zs, col, H, R, sensor=sensor, track_mask=track_mask)
         else:
             col = jnp.full((K,), -1, jnp.int32)
-            post = pda._jpda_update(state, zs, beta, H, R, sensor, mask_s, track_mask)
+            post = pda.jpda_update(state, zs, beta, H, R, sensor=sensor, meas_mask=mask_s,
+                                   track_mask=track_mask)
         return post, (beta, col, info.approximate)
 
     states = Gaussian(jnp.asarray(states.mean, dtype), jnp.asarray(states.cov, dtype))

@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxtrack import _checks
 from jaxtrack.association import detections as _detections
-from jaxtrack.filters import _linalg, kalman
+from jaxtrack.filters import _gaussian, _linalg, kalman
 from jaxtrack.filters.kalman import Gaussian
 
 Array = jax.Array
@@ -61,8 +61,8 @@ def pda_update(state: Gaussian, zs: Array, beta_row: Array, H: Array, R: Array, 
       >>> beta = jpda_marginals(g, 0.9, 1e-2)                 # [K, M + 1]
       >>> post = pda_update(Gaussian(means[0], covs[0]), zs, beta[0], H, R)
     """
-    n = kalman._check_state(state)
-    M, m = _check_frame(zs, H, n, meas_mask)
+    n = _gaussian.check_state(state)
+    M, m = _detections.check_frame(zs, H, n, meas_mask)
     _checks.check_shape("beta_row", beta_row, (M + 1,), "M + 1 probabilities")
     _detections.check_noise(R, sensor, M, m)
     return _pda_update(state, zs, beta_row, H, R, sensor, meas_mask)
@@ -86,8 +86,8 @@ def jpda_update(states: Gaussian, zs: Array, beta: Array, H: Array, R: Array, *,
       >>> beta = jpda_marginals(g, 0.9, 1e-2, meas_mask=mask)
       >>> posts = jpda_update(Gaussian(means, covs), zs, beta, H, R, meas_mask=mask)
     """
-    K, n = _check_states(states)
-    M, m = _check_frame(zs, H, n, meas_mask)
+    K, n = _gaussian.check_states(states)
+    M, m = _detections.check_frame(zs, H, n, meas_mask)
     _checks.check_shape("beta", beta, (K, M + 1), "[K, M + 1] marginals")
     _detections.check_noise(R, sensor, M, m)
     if track_mask is not None:
@@ -121,8 +121,8 @@ def nn_update(states: Gaussian, zs: Array, col_for_row: Array, H: Array, R: Arra
       >>> col = nn_jpda(jpda_marginals(g, 0.9, 1e-2))
       >>> posts, ll = nn_update(Gaussian(means, covs), zs, col, H, R)
     """
-    K, n = _check_states(states)
-    M, m = _check_frame(zs, H, n, None)
+    K, n = _gaussian.check_states(states)
+    M, m = _detections.check_frame(zs, H, n, None)
     _checks.check_shape("col_for_row", col_for_row, (K,), "one detection index per track")
     if not jnp.issubdtype(jnp.result_type(col_for_row), jnp.integer):
         raise ValueError("col_for_row must hold integers (-1 for no detection)")
@@ -209,7 +209,7 @@ def _nn_update(states, zs, col_for_row, H, R, sensor, track_mask):
 
     def one(state, col):
         j = jnp.clip(col, 0, M - 1)
-        return kalman._update(state, zs[j], H, Rj[j], col >= 0)
+        return kalman.update(state, zs[j], H, Rj[j], col >= 0)
 
     post, ll = jax.vmap(one)(states, jnp.asarray(col_for_row))
     if track_mask is not None:
@@ -223,22 +223,3 @@ def _keep_masked(states, post, track_mask):
     keep = jnp.asarray(track_mask, bool)
     return Gaussian(jnp.where(keep[:, None], post.mean, states.mean),
                     jnp.where(keep[:, None, None], post.cov, states.cov))
-
-
-def _check_states(states) -> tuple[int, int]:
-    if not isinstance(states, Gaussian):
-        raise TypeError(f"states must be a kalman.Gaussian; got {type(states).__name__}")
-    _checks.check_ndim("states.mean", states.mean, 2, "[K, n] track means")
-    K, n = _checks.shape_of(states.mean)
-    _checks.check_covariance("states.cov", states.cov, n, batch_axes=1)
-    _checks.check_shape("states.cov", states.cov, (K, n, n))
-    return K, n
-
-
-def _check_frame(zs, H, n, meas_mask) -> tuple[int, int]:
-    _checks.check_ndim("zs", zs, 2, "[M, m] detections")
-    M, m = _checks.shape_of(zs)
-    _checks.check_shape("H", H, (m, n), "measurement matrix")
-    if meas_mask is not None:
-        _checks.check_shape("meas_mask", meas_mask, (M,), "one flag per detection slot")
-    return M, m

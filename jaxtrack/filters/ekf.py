@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxtrack import _checks
-from jaxtrack.filters import _linalg, kalman
+from jaxtrack.filters import _gaussian, _linalg, kalman
 from jaxtrack.filters.kalman import FilterResult, Gaussian
 
 Array = jax.Array
@@ -44,7 +44,7 @@ def predict(state: Gaussian, f: Callable, Q: Array, u: Array | None = None) -> G
       >>> f = motion.coordinated_turn(dt=0.1)
       >>> prior = ekf.predict(kalman.Gaussian(x0, P0), f, Q)
     """
-    n = kalman._check_state(state)
+    n = _gaussian.check_state(state)
     _checks.check_callable("f", f)
     _checks.check_covariance("Q", Q, n)
     out = jax.eval_shape(lambda x: _call_f(f, x, u), state.mean)
@@ -71,8 +71,8 @@ def update(state: Gaussian, z: Array, h: Callable, R: Array, mask: Array | bool 
       >>> post, ll = ekf.update(prior, z, measurement.range_bearing, R,
       ...                       residual=measurement.range_bearing_residual)
     """
-    n = kalman._check_state(state)
-    m = kalman._check_measurement(z, mask)
+    _gaussian.check_state(state)
+    m = _gaussian.check_measurement(z, mask)
     _checks.check_callable("h", h)
     out = jax.eval_shape(h, state.mean)
     _checks.check_shape("h(x)", out, (m,), "the measurement function must map [n] to [m]")
@@ -103,8 +103,8 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
       ...                  residual=measurement.range_bearing_residual)
     """
     tv = _checks.check_options("time_varying", time_varying, ("Q", "R"))
-    n = kalman._check_state(init, "init")
-    T, m = kalman._check_sequence(zs, masks)
+    n = _gaussian.check_state(init, "init")
+    T, m = _gaussian.check_sequence(zs, masks)
     _checks.check_callable("f", f)
     _checks.check_callable("h", h)
     _checks.check_covariance("Q", Q, n, batch_axes=int("Q" in tv))

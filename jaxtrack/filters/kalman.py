@@ -7,9 +7,11 @@ Model (time-invariant unless named in ``time_varying``)
     z_t = H x_t + v_t, \quad v_t \sim N(0, R).
 
 Every function works on one episode with pure arrays; batch with `jax.vmap`. The step functions
-(`predict`, `update`) are public so that closed loops (tracker + controller) can call them one
-step at a time; `filter` is the `lax.scan` driver, following filterpy's ``batch_filter``
-convention: each step predicts, then updates with ``zs[t]``.
+(`predict`, `update`) are public so that closed loops (tracker + controller) and other modules
+(`jaxtrack.association.nn_update`) can call them one step at a time, inside `jit` and `vmap`:
+their checks read shapes always and values only of concrete arrays. `filter` is the `lax.scan`
+driver, following filterpy's ``batch_filter`` convention: each step predicts, then updates with
+``zs[t]``.
 
 Missing data is a mask, never a branch: ``mask`` may be a scalar (whole measurement present or
 not) or one flag per measurement component. Components that are not finite are treated as
@@ -26,19 +28,13 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxtrack import _checks
-from jaxtrack.filters import _linalg
+from jaxtrack.filters import _gaussian, _linalg
+from jaxtrack.filters._gaussian import Gaussian
 
 Array = jax.Array
 
 __all__ = ["Gaussian", "FilterResult", "SmootherResult", "predict", "update", "filter",
            "rts_smoother"]
-
-
-class Gaussian(NamedTuple):
-    """A Gaussian belief: ``mean`` [n], ``cov`` [n, n] (shared by kalman, ekf and ukf)."""
-
-    mean: Array
-    cov: Array
 
 
 class FilterResult(NamedTuple):
@@ -96,7 +92,7 @@ def predict(state: Gaussian, F: Array, Q: Array, B: Array | None = None,
       >>> F, Q = motion.constant_velocity(dt=0.1, q=1.0)
       >>> prior = kalman.predict(kalman.Gaussian(jnp.zeros(4), jnp.eye(4)), F, Q)
     """
-    n = _check_state(state)
+    n = _gaussian.check_state(state)
     _checks.check_shape("F", F, (n, n), "state transition")
     _checks.check_covariance("Q", Q, n)
     if (B is None) != (u is None):
@@ -133,8 +129,8 @@ def update(state: Gaussian, z: Array, H: Array, R: Array,
     Example:
       >>> post, ll = kalman.update(prior, jnp.array([1.0, 2.0]), H, R)
     """
-    n = _check_state(state)
-    m = _check_measurement(z, mask)
+    n = _gaussian.check_state(state)
+    m = _gaussian.check_measurement(z, mask)
     _checks.check_shape("H", H, (m, n), "measurement matrix")
     _checks.check_covariance("R", R, m)
     return _update(state, z, H, R, mask)
@@ -174,8 +170,8 @@ def filter(init: Gaussian, zs: Array, F: Array, Q: Array, H: Array, R: Array,
       >>> res.means.shape, res.log_likelihood
     """
     tv = _checks.check_options("time_varying", time_varying, _TIME_VARYING)
-    n = _check_state(init, "init")
-    T, m = _check_sequence(zs, masks)
+    n = _gaussian.check_state(init, "init")
+    T, m = _gaussian.check_sequence(zs, masks)
     mats = {"F": F, "Q": Q, "H": H, "R": R}
     if (B is None) != (us is None):
         raise ValueError("B and us must be given together")
@@ -261,7 +257,7 @@ def rts_smoother(result: FilterResult, F: Array, Q: Array, *, B: Array | None = 
 
 
 # ---------------------------------------------------------------------------------------------
-# Shared internals (also used by ekf and ukf)
+# Unchecked cores of `predict` / `update` (for the drivers), and pieces shared with ekf and ukf
 
 
 def _predict(state, F, Q, B=None, u=None):
@@ -341,34 +337,3 @@ def run_filter(init, zs, masks, step, per_step, return_predicted=True) -> Filter
     _, (post, pred, lls) = lax.scan(body, init, (zs, masks, per_step))
     pm, pc = (pred.mean, pred.cov) if return_predicted else (None, None)
     return FilterResult(post.mean, post.cov, pm, pc, lls, jnp.sum(lls), num_invalid)
-
-
-def _check_state(state, name: str = "state") -> int:
-    if not isinstance(state, Gaussian):
-        raise TypeError(f"{name} must be a kalman.Gaussian; got {type(state).__name__}")
-    _checks.check_ndim(f"{name}.mean", state.mean, 1, "a [n] vector")
-    n = jnp.shape(state.mean)[0]
-    _checks.check_covariance(f"{name}.cov", state.cov, n)
-    _checks.check_finite(f"{name}.mean", state.mean)
-    return n
-
-
-def _check_measurement(z, mask) -> int:
-    _checks.check_ndim("z", z, 1, "a [m] vector")
-    m = jnp.shape(z)[0]
-    if mask is not None and jnp.ndim(mask) not in (0, 1):
-        raise ValueError(f"mask must be a scalar or [m] bools; got shape {jnp.shape(mask)}")
-    if mask is not None and jnp.ndim(mask) == 1:
-        _checks.check_shape("mask", mask, (m,))
-    return m
-
-
-def _check_sequence(zs, masks) -> tuple[int, int]:
-    _checks.check_ndim("zs", zs, 2, "a [T, m] sequence of measurements")
-    T, m = jnp.shape(zs)
-    if masks is not None:
-        if jnp.ndim(masks) == 1:
-            _checks.check_shape("masks", masks, (T,))
-        else:
-            _checks.check_shape("masks", masks, (T, m), "[T] or [T, m] bools")
-    return T, m

@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import _checks
-from jaxtrack.filters import _linalg, kalman
+from jaxtrack.filters import _gaussian, _linalg, kalman
 from jaxtrack.filters.kalman import FilterResult, Gaussian
 
 Array = jax.Array
@@ -156,6 +156,10 @@ def predict(state: Gaussian, f: Callable, Q: Array, u: Array | None = None,
             residual_x: Callable | None = None) -> Gaussian:
     """UKF prediction: propagate sigma points through ``f`` and recombine, plus ``Q``.
 
+    A step function for closed loops: callable inside `jit` and `vmap` (its checks read shapes,
+    and values only of concrete arrays), e.g. mapped over the track slots of
+    `jaxtrack.tracking.tracker.predict`.
+
     Args:
       state: Gaussian, mean [n], cov [n, n].
       f: transition ``f(x [n], u) -> [n]`` (``f(x)`` when ``u`` is None).
@@ -170,7 +174,7 @@ def predict(state: Gaussian, f: Callable, Q: Array, u: Array | None = None,
     Example:
       >>> prior = ukf.predict(kalman.Gaussian(x0, P0), motion.coordinated_turn(0.1), Q)
     """
-    n = kalman._check_state(state)
+    n = _gaussian.check_state(state)
     _check_points(points)
     _checks.check_callable("f", f)
     _checks.check_covariance("Q", Q, n)
@@ -201,8 +205,8 @@ def update(state: Gaussian, z: Array, h: Callable, R: Array,
       >>> post, ll = ukf.update(prior, z, measurement.range_bearing, R,
       ...                       residual_z=measurement.range_bearing_residual)
     """
-    n = kalman._check_state(state)
-    m = kalman._check_measurement(z, mask)
+    _gaussian.check_state(state)
+    m = _gaussian.check_measurement(z, mask)
     _check_points(points)
     _checks.check_callable("h", h)
     _checks.check_covariance("R", R, m)
@@ -231,8 +235,8 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
       ...                  residual_z=measurement.range_bearing_residual)
     """
     tv = _checks.check_options("time_varying", time_varying, ("Q", "R"))
-    n = kalman._check_state(init, "init")
-    T, m = kalman._check_sequence(zs, masks)
+    n = _gaussian.check_state(init, "init")
+    T, m = _gaussian.check_sequence(zs, masks)
     _check_points(points)
     _checks.check_callable("f", f)
     _checks.check_callable("h", h)

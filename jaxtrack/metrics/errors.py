@@ -199,7 +199,9 @@ def chi2_ppf(q: Array, dof: Array) -> Array:
     Solves :math:`P(k/2, x/2) = q` (regularised lower incomplete gamma, `gammainc`) by Newton's
     method from the Wilson-Hilferty approximation, safeguarded by bisection on a bracket, for a
     fixed number of iterations. Agrees with ``scipy.stats.chi2.ppf`` to about 1e-12 (relative) in
-    float64 for ``dof`` in [1, 10^4] and ``q`` in [1e-10, 1 - 1e-10] (see the tests).
+    float64 for ``dof`` in [1, 10^4] and ``q`` in [1e-10, 1 - 1e-10] (see the tests). Callable
+    inside `jit` (``q`` and ``dof`` are checked only when concrete); the gate's quantile
+    `jaxtrack.association.chi2_ppf` uses it for three or more degrees of freedom.
 
     Args:
       q: probability in (0, 1) (any shape, broadcast with ``dof``).

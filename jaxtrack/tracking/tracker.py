@@ -29,6 +29,15 @@ each with its own noise, seed 003):
 
 People (seed 003): `is_walking` thresholds the speed at 0.1 m/s; the heading follows the
 velocity while walking, directly or through seed 002's adaptive AR filter.
+
+`step` chains five stages, each a public function with a named result, which a closed loop may
+also call one by one (e.g. to read the association of a scan) -- Stone Soup's tracker loop::
+
+    predicted = predict(state, params)                            # Gaussian [K, 4]
+    hyp = hypothesise(state, predicted, detections, params)      # gates [K, M]: Hypotheses
+    assoc = associate(hyp, params)       # associate_gnn / _jpda / _nn_jpda: Association
+    tracks = manage(state, hyp, assoc, params)                   # confirm / delete / merge
+    tracks = births(tracks, hyp, assoc, params).tracks           # new tracks in free slots
 """
 
 from __future__ import annotations
@@ -51,7 +60,9 @@ from jaxtrack.tracking import appearance
 Array = jax.Array
 
 __all__ = ["TrackerConfig", "TrackerParams", "Tracks", "Detections", "init", "step", "run",
-           "is_walking", "make_detections", "FREE", "TENTATIVE", "CONFIRMED"]
+           "is_walking", "make_detections", "FREE", "TENTATIVE", "CONFIRMED",
+           "Hypotheses", "Association", "Births", "predict", "hypothesise", "associate",
+           "associate_gnn", "associate_jpda", "associate_nn_jpda", "manage", "births"]
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
 
@@ -299,15 +310,107 @@ def is_walking(tracks: Tracks, params: TrackerParams) -> Array:
     return (speed > params.walking_speed) & (tracks.status != FREE)
 
 
+def _step(state, det, params):
+    # Stone Soup's MultiTargetTracker loop for one scan: predict and gate (hypothesise), then
+    # associate and update, then confirm / delete / merge, then start tracks in free slots.
+    predicted = predict(state, params)
+    hypotheses = hypothesise(state, predicted, det, params)
+    assoc = associate(hypotheses, params)
+    tracks = manage(state, hypotheses, assoc, params)
+    return births(tracks, hypotheses, assoc, params).tracks
+
+
 # ---------------------------------------------------------------------------------------------
+# Stages of one scan (what `step` chains; public for closed loops that run them one by one)
 
 
-def _noise(params, dtype):
-    r = jnp.exp(params.log_r_std).astype(dtype)
-    return (r**2)[:, None, None] * jnp.eye(2, dtype=dtype)
+class Hypotheses(NamedTuple):
+    r"""One scan gated against the predicted tracks: what association, management and births read.
+
+    Attributes:
+      predicted: Gaussian, mean [K, 4] and cov [K, 4, 4] (from `predict`).
+      live: [K] bools, the slots that held a track before the scan (not `FREE`).
+      zs: [M, 2] detection positions, 0 where ``mask`` is False.
+      mask: [M] bools, detections present and finite.
+      sensor: [M] int32 sensor index, clipped to the S sensors of ``params.log_r_std``.
+      R: [S, 2, 2] noise covariance of each sensor, :math:`r_s^2 I`.
+      innovations: `jaxtrack.association.Innovations`, ``d2`` / ``log_likelihood`` / ``valid``
+        [K, M] with the noise of each detection's sensor.
+      gated: [K, M] bools, :math:`d^2_{kj} \le \chi^2_2{}^{-1}(P_G)` for live tracks and present
+        detections.
+      appearance: [K, M] colour confidence of each track's classifier (0 without features).
+      confidence: [M] detector confidence.
+      features: [M, F] appearance features, in the tracks' dtype.
+    """
+
+    predicted: Gaussian
+    live: Array
+    zs: Array
+    mask: Array
+    sensor: Array
+    R: Array
+    innovations: association.Innovations
+    gated: Array
+    appearance: Array
+    confidence: Array
+    features: Array
 
 
-def _predict(state, params):
+class Association(NamedTuple):
+    """The result of associating one scan and updating the tracks.
+
+    Attributes:
+      posterior: Gaussian, mean [K, 4] and cov [K, 4, 4]: live tracks updated, the other slots
+        as predicted.
+      hit: [K] bools, live tracks that got a detection (JPDA: probability of detection > 1/2).
+      col: [K] int, the detection each track took, -1 for none (JPDA: the detection of marginal
+        > 1/2, if any).
+      used: [M] bools, detections taken by a track (JPDA: total marginal over live tracks
+        >= 1/2); they start no track.
+    """
+
+    posterior: Gaussian
+    hit: Array
+    col: Array
+    used: Array
+
+
+class Births(NamedTuple):
+    """The result of `births`.
+
+    Attributes:
+      tracks: the `Tracks` with the new tentative (or, when ``confirm_hits`` is 1, confirmed)
+        tracks in free slots.
+      born: [M] bools, detections that started a track.
+      slot: [M] int, the slot of each new track (K where ``born`` is False).
+    """
+
+    tracks: Tracks
+    born: Array
+    slot: Array
+
+
+def predict(state: Tracks, params: TrackerParams) -> Gaussian:
+    r"""Predict every live track one scan ahead with the constant-velocity model.
+
+    .. math:: m' = F m,\qquad P' = F P F^T + Q
+
+    with :math:`F, Q` of `jaxtrack.models.motion.constant_velocity` (period ``dt``, spectral
+    density ``exp(log_q)``); ``config.filter = "ukf"`` propagates sigma points instead
+    (`jaxtrack.filters.ukf.predict`, the same moments for this linear model). The covariance is
+    symmetrised.
+
+    Args:
+      state: `Tracks` with K slots.
+      params: `TrackerParams`.
+
+    Returns:
+      Gaussian with mean [K, 4] and cov [K, 4, 4]; free slots keep their values.
+
+    Example:
+      >>> predicted = predict(tracks, params)
+    """
+    _check_stage(params, state=state)
     cfg = params.config
     F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
     F, Q = F.astype(state.mean.dtype), Q.astype(state.mean.dtype)
@@ -315,67 +418,192 @@ def _predict(state, params):
         mean = state.mean @ F.T
         cov = F @ state.cov @ F.T + Q
     else:
-        pred = jax.vmap(lambda m, P: ukf._predict(Gaussian(m, P), lambda x: F @ x, Q, None,
-                                                  ukf.DEFAULT_POINTS, None, None))(
+        pred = jax.vmap(lambda m, P: ukf.predict(Gaussian(m, P), lambda x: F @ x, Q))(
             state.mean, state.cov)
         mean, cov = pred.mean, pred.cov
     cov = 0.5 * (cov + jnp.swapaxes(cov, -1, -2))
     live = state.status != FREE
-    return (jnp.where(live[:, None], mean, state.mean),
-            jnp.where(live[:, None, None], cov, state.cov))
+    return Gaussian(jnp.where(live[:, None], mean, state.mean),
+                    jnp.where(live[:, None, None], cov, state.cov))
 
 
-def _step(state, det, params):
+def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
+                params: TrackerParams) -> Hypotheses:
+    r"""Gate a scan of detections against the predicted tracks (Stone Soup's hypothesiser).
+
+    Detections under a False mask or with a non-finite position are dropped. For every pair of a
+    live track k and a present detection j from sensor s,
+
+    .. math:: S_{kj} = H P_k H^T + r_s^2 I,\quad d^2_{kj} = y_{kj}^T S_{kj}^{-1} y_{kj},\quad
+        \text{gated} \iff d^2_{kj} \le \chi^2_2{}^{-1}(P_G)
+
+    (`jaxtrack.association.innovations` and `gate`, :math:`P_G` = ``gate_prob``), plus the
+    colour confidence of the track's online classifier when ``config.num_features > 0``.
+
+    Args:
+      state: `Tracks` with K slots, before the scan (its status says which slots are live).
+      predicted: Gaussian [K, 4] / [K, 4, 4] from `predict`.
+      detections: `Detections` with M slots.
+      params: `TrackerParams`.
+
+    Returns:
+      `Hypotheses` ([K, M] innovations, gates and appearance confidences, and the cleaned scan).
+
+    Example:
+      >>> hyp = hypothesise(tracks, predict(tracks, params), detections, params)
+      >>> hyp.gated.shape    # (K, M)
+    """
+    _check(state, detections, params)
+    _check_stage(params, predicted=predicted)
     cfg = params.config
     dtype = state.mean.dtype
-    K, M = cfg.capacity, det.positions.shape[0]
+    K, M = cfg.capacity, detections.positions.shape[0]
     live = state.status != FREE
-    mask = det.mask & jnp.all(jnp.isfinite(det.positions), -1)
-    zs = jnp.where(mask[:, None], det.positions, 0.0).astype(dtype)
-    H = measurement.position(4, dtype=dtype)
+    mask = detections.mask & jnp.all(jnp.isfinite(detections.positions), -1)
+    zs = jnp.where(mask[:, None], detections.positions, 0.0).astype(dtype)
     R = _noise(params, dtype)
-    sensor = jnp.clip(det.sensor, 0, R.shape[0] - 1)
-    mean, cov = _predict(state, params)
-    states = Gaussian(mean, cov)
-
-    inn = association.innovations(mean, cov, zs, H, R, sensor=sensor, track_mask=live,
-                                  meas_mask=mask)
+    sensor = jnp.clip(detections.sensor, 0, R.shape[0] - 1)
+    inn = association.innovations(predicted.mean, predicted.cov, zs, _position(dtype), R,
+                                  sensor=sensor, track_mask=live, meas_mask=mask)
     gated = association.gate(inn.d2, 2, params.gate_prob, live, mask)
-    conf_app = (appearance.confidence(state.appearance, det.features.astype(dtype))
-                if cfg.num_features else jnp.zeros((K, M), dtype))
+    features = detections.features.astype(dtype)
+    conf_app = (appearance.confidence(state.appearance, features) if cfg.num_features
+                else jnp.zeros((K, M), dtype))
+    return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
+                      detections.confidence, features)
 
-    if cfg.association == "gnn":
-        cost = (params.gamma * inn.d2 - params.alpha * conf_app
-                - params.beta * det.confidence.astype(dtype)[None, :])
-        col = association.gnn(jnp.where(gated, cost, jnp.inf), gated, track_mask=live,
-                              meas_mask=mask)
-        posts, _ = association.nn_update(states, zs, col, H, R, sensor=sensor, track_mask=live)
-        hit = col >= 0
-        used = jnp.zeros(M, bool).at[jnp.where(hit, col, M)].set(True, mode="drop")
-    else:
-        loglik = jnp.where(gated, inn.log_likelihood, -jnp.inf)
-        p_d = jax.nn.sigmoid(params.logit_p_detect)
-        beta = association.jpda_marginals(loglik, p_d, jnp.exp(params.log_clutter_density),
-                                          live, mask, cfg.jpda_method, log=True)
-        if cfg.association == "jpda":
-            posts = association.jpda_update(states, zs, beta, H, R, sensor=sensor,
-                                            meas_mask=mask, track_mask=live)
-            hit = live & (beta[:, M] < 0.5)
-            best = jnp.argmax(beta[:, :M], -1)
-            col = jnp.where(hit & (jnp.max(beta[:, :M], -1) > 0.5), best, -1)
-            used = jnp.sum(jnp.where(live[:, None], beta[:, :M], 0.0), 0) >= 0.5
-        else:
-            col = association.nn_jpda(beta)
-            col = jnp.where(live, col, -1)
-            posts, _ = association.nn_update(states, zs, col, H, R, sensor=sensor,
-                                             track_mask=live)
-            hit = col >= 0
-            used = jnp.zeros(M, bool).at[jnp.where(hit, col, M)].set(True, mode="drop")
 
-    mean = jnp.where(live[:, None], posts.mean, state.mean)
-    cov = jnp.where(live[:, None, None], posts.cov, state.cov)
+def associate(hypotheses: Hypotheses, params: TrackerParams) -> Association:
+    """Associate and update with the method of ``params.config.association``: `associate_gnn`,
+    `associate_jpda` or `associate_nn_jpda`.
 
-    # ---- bookkeeping of live tracks
+    Example:
+      >>> assoc = associate(hypothesise(tracks, predict(tracks, params), dets, params), params)
+    """
+    _check_stage(params)
+    return _ASSOCIATORS[params.config.association](hypotheses, params)
+
+
+def associate_gnn(hypotheses: Hypotheses, params: TrackerParams) -> Association:
+    r"""GNN (seed 001): the optimal assignment inside the gates, then a Kalman update per track.
+
+    The cost of pairing track k with detection j is seed 001's eq. 2,
+    :math:`C_{kj} = \gamma d^2_{kj} - \alpha c^{app}_{kj} - \beta c^{det}_j` (``gamma``,
+    ``alpha``, ``beta`` of the params), minimised over the assignments that use gated pairs only
+    (`jaxtrack.association.gnn`); each assigned track gets a Joseph-form Kalman update with its
+    detection and that detection's sensor noise (`jaxtrack.association.nn_update`).
+
+    Args:
+      hypotheses: `Hypotheses` of the scan (K tracks, M detections).
+      params: `TrackerParams`.
+
+    Returns:
+      `Association`: posterior [K, 4] / [K, 4, 4], hit [K], col [K] int32, used [M].
+
+    Example:
+      >>> assoc = associate_gnn(hypothesise(tracks, predict(tracks, params), dets, params),
+      ...                       params)
+    """
+    _check_stage(params, hypotheses=hypotheses)
+    h = hypotheses
+    dtype = h.zs.dtype
+    cost = (params.gamma * h.innovations.d2 - params.alpha * h.appearance
+            - params.beta * h.confidence.astype(dtype)[None, :])
+    col = association.gnn(jnp.where(h.gated, cost, jnp.inf), h.gated, track_mask=h.live,
+                          meas_mask=h.mask)
+    return _hard_update(h, col)
+
+
+def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association:
+    r"""JPDA (seed 003): marginal association probabilities, then the combined-innovation update.
+
+    :math:`\beta` [K, M + 1] are the JPDA marginals of the gated likelihoods with detection
+    probability :math:`P_D = \sigma(` ``logit_p_detect`` :math:`)` and Poisson clutter of density
+    ``exp(log_clutter_density)`` (`jaxtrack.association.jpda_marginals`, ``config.jpda_method``);
+    every live track gets the PDA update with its row (`jaxtrack.association.jpda_update`). A
+    track is hit when :math:`\beta_{k\varnothing} < 1/2`; it took detection j when
+    :math:`\beta_{kj} > 1/2`; a detection is used when :math:`\sum_k \beta_{kj} \ge 1/2`.
+
+    Args:
+      hypotheses: `Hypotheses` of the scan (K tracks, M detections).
+      params: `TrackerParams`.
+
+    Returns:
+      `Association`: posterior [K, 4] / [K, 4, 4], hit [K], col [K] int, used [M].
+
+    Example:
+      >>> assoc = associate_jpda(hypothesise(tracks, predict(tracks, params), dets, params),
+      ...                        params)
+    """
+    _check_stage(params, hypotheses=hypotheses)
+    h = hypotheses
+    M = h.zs.shape[0]
+    beta = _marginals(h, params)
+    posts = association.jpda_update(h.predicted, h.zs, beta, _position(h.zs.dtype), h.R,
+                                    sensor=h.sensor, meas_mask=h.mask, track_mask=h.live)
+    hit = h.live & (beta[:, M] < 0.5)
+    best = jnp.argmax(beta[:, :M], -1)
+    col = jnp.where(hit & (jnp.max(beta[:, :M], -1) > 0.5), best, -1)
+    used = jnp.sum(jnp.where(h.live[:, None], beta[:, :M], 0.0), 0) >= 0.5
+    return Association(posts, hit, col, used)
+
+
+def associate_nn_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association:
+    r"""NN-JPDA (seed 003, eq. 9): the MAP detection of each track from the JPDA marginals, then a
+    Kalman update with it.
+
+    The marginals are those of `associate_jpda`; the choice is
+    :math:`\hat j_k = \arg\max_j \beta_{kj}` with conflicts resolved greedily
+    (`jaxtrack.association.nn_jpda`), and the update is `jaxtrack.association.nn_update`.
+
+    Args:
+      hypotheses: `Hypotheses` of the scan (K tracks, M detections).
+      params: `TrackerParams`.
+
+    Returns:
+      `Association`: posterior [K, 4] / [K, 4, 4], hit [K], col [K] int32, used [M].
+
+    Example:
+      >>> assoc = associate_nn_jpda(hypothesise(tracks, predict(tracks, params), dets, params),
+      ...                           params)
+    """
+    _check_stage(params, hypotheses=hypotheses)
+    h = hypotheses
+    col = jnp.where(h.live, association.nn_jpda(_marginals(h, params)), -1)
+    return _hard_update(h, col)
+
+
+def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
+           params: TrackerParams) -> Tracks:
+    r"""Track management after the update: hit history, confirmation, deletion, merging,
+    appearance and heading.
+
+    For each live track: the hit history (bit 0 = this scan, ``confirm_window`` bits), hits,
+    consecutive misses and age are counted; a tentative track with at least ``confirm_hits`` hits
+    in the window is confirmed; a track is deleted (its slot freed: id -1, counters 0) after
+    ``max_tentative_misses`` (tentative) or ``max_misses`` (confirmed) consecutive misses, when
+    its position std :math:`\sqrt{\max(P_{xx}, P_{yy})}` exceeds ``max_position_std``, when its
+    mean is not finite, or (``merge_distance > 0``) when a stronger live track is within
+    ``merge_distance``. The colour classifier of every surviving track takes one step on the
+    scan (`jaxtrack.tracking.appearance.update`); the heading follows the velocity while the
+    speed exceeds ``walking_speed`` (or seed 002's AR filter, ``config.heading = "ar"``).
+
+    Args:
+      state: `Tracks` with K slots, before the scan.
+      hypotheses: `Hypotheses` of the scan.
+      assoc: `Association` of the scan (its posterior becomes the tracks' mean and cov).
+      params: `TrackerParams`.
+
+    Returns:
+      The updated `Tracks` (``next_id`` and ``num_dropped`` unchanged; no births yet).
+
+    Example:
+      >>> tracks = manage(state, hyp, associate(hyp, params), params)
+    """
+    _check_stage(params, state=state, hypotheses=hypotheses, assoc=assoc)
+    cfg = params.config
+    live, hit = hypotheses.live, assoc.hit
+    mean, cov = assoc.posterior
     window = (1 << cfg.confirm_window) - 1
     history = jnp.where(live, ((state.history << 1) | hit.astype(jnp.int32)) & window, 0)
     hits = state.hits + (live & hit)
@@ -397,24 +625,60 @@ def _step(state, det, params):
 
     app = state.appearance
     if cfg.num_features:
-        app = appearance.update(app, det.features.astype(dtype), col, mask, live & ~dead,
-                                params.appearance_lr)
+        app = appearance.update(app, hypotheses.features, assoc.col, hypotheses.mask,
+                                live & ~dead, params.appearance_lr)
 
-    speed = jnp.sqrt(jnp.sum(mean[:, 2:] ** 2, -1))
     if cfg.heading == "ar":
         head = jax.vmap(heading_filter.ar_heading_step)(state.heading, mean[:, 2:])
     else:
+        speed = jnp.sqrt(jnp.sum(mean[:, 2:] ** 2, -1))
         head = jnp.where(speed > params.walking_speed, jnp.arctan2(mean[:, 3], mean[:, 2]),
                          state.heading)
 
-    # ---- births in free slots
     free = status == FREE
-    # A detection inside any live track's gate never starts a track: it is explained by that
-    # track even when the association gave it to nobody, and a duplicate would compete with it.
-    in_gate = jnp.any(gated & live[:, None], 0)
-    eligible = mask & ~used & ~in_gate & (det.confidence >= params.birth_confidence)
+    return Tracks(mean, cov, jnp.where(free, -1, state.id), jnp.where(free, 0, age),
+                  jnp.where(free, 0, hits), jnp.where(free, 0, misses),
+                  jnp.where(free, 0, history), status, head, app, state.next_id,
+                  state.num_dropped)
+
+
+def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
+           params: TrackerParams) -> Births:
+    r"""Start tracks from the unexplained detections of a scan, in free slots.
+
+    A present detection starts a track when no track used it, it lies outside every live gate
+    (it would be explained by that track, even unassigned, and a duplicate would compete with
+    it) and its detector confidence is at least ``birth_confidence`` (seed 001); with
+    ``merge_distance > 0`` one closer than that to an earlier eligible detection (lower index)
+    starts none. The i-th eligible detection (i = 0, 1, ...) takes the i-th free slot, if there
+    is one (else it is counted in ``num_dropped``), with id ``next_id + i``: ids are unique and
+    increasing. A new track has mean :math:`[z, 0, 0]`, covariance
+    :math:`\mathrm{diag}(R_s, \sigma_v^2 I)` (:math:`\sigma_v` = ``exp(log_init_speed_std)``),
+    one hit, and status `TENTATIVE` (`CONFIRMED` when ``confirm_hits`` is 1).
+
+    Args:
+      tracks: `Tracks` after `manage`.
+      hypotheses: `Hypotheses` of the scan (M detections).
+      assoc: `Association` of the scan.
+      params: `TrackerParams`.
+
+    Returns:
+      `Births`: the tracks with the new ones, born [M] and slot [M].
+
+    Example:
+      >>> new = births(manage(state, hyp, assoc, params), hyp, assoc, params)
+      >>> new.tracks.id[new.slot[new.born]]    # next_id, next_id + 1, ...
+    """
+    _check_stage(params, tracks=tracks, hypotheses=hypotheses, assoc=assoc)
+    cfg = params.config
+    h = hypotheses
+    dtype = h.zs.dtype
+    K, M = cfg.capacity, h.zs.shape[0]
+    free = tracks.status == FREE
+    in_gate = jnp.any(h.gated & h.live[:, None], 0)
+    eligible = h.mask & ~assoc.used & ~in_gate & (h.confidence >= params.birth_confidence)
     if cfg.merge_distance > 0:
-        d2 = jnp.sum((zs[:, None] - zs[None]) ** 2, -1)
+        d2 = jnp.sum((h.zs[:, None] - h.zs[None]) ** 2, -1)
         earlier = jnp.tril(jnp.ones((M, M), bool), -1)  # [j, i]: i < j
         eligible = eligible & ~jnp.any(earlier & eligible[None, :]
                                        & (d2 < cfg.merge_distance**2), 1)
@@ -423,32 +687,64 @@ def _step(state, det, params):
     free_slots = jnp.argsort(~free, stable=True)  # free slot indices first, in order
     born = eligible & (rank < num_free)
     slot = jnp.where(born, free_slots[jnp.clip(rank, 0, K - 1)], K)
-    new_ids = state.next_id + rank
-    r_det = R[sensor]
+    new_ids = tracks.next_id + rank
+    r_det = h.R[h.sensor]
     v0 = jnp.exp(params.log_init_speed_std).astype(dtype) ** 2
     cov0 = jnp.zeros((M, 4, 4), dtype).at[:, :2, :2].set(r_det)
     cov0 = cov0.at[:, 2, 2].set(v0).at[:, 3, 3].set(v0)
-    mean0 = jnp.concatenate([zs, jnp.zeros((M, 2), dtype)], -1)
+    mean0 = jnp.concatenate([h.zs, jnp.zeros((M, 2), dtype)], -1)
 
     def put(arr, values):
         return arr.at[slot].set(values, mode="drop")
 
     first = jnp.where(cfg.confirm_hits <= 1, CONFIRMED, TENTATIVE)
     num_born = jnp.sum(born).astype(jnp.int32)
-    state = Tracks(
-        put(mean, mean0), put(cov, cov0),
-        put(jnp.where(status == FREE, -1, state.id), new_ids.astype(jnp.int32)),
-        put(jnp.where(status == FREE, 0, age), jnp.zeros(M, jnp.int32)),
-        put(jnp.where(status == FREE, 0, hits), jnp.ones(M, jnp.int32)),
-        put(jnp.where(status == FREE, 0, misses), jnp.zeros(M, jnp.int32)),
-        put(jnp.where(status == FREE, 0, history), jnp.ones(M, jnp.int32)),
-        put(status, jnp.full(M, first, jnp.int32)),
-        put(head, jnp.zeros(M, dtype)),
+    app = tracks.appearance
+    new = Tracks(
+        put(tracks.mean, mean0), put(tracks.cov, cov0),
+        put(tracks.id, new_ids.astype(jnp.int32)), put(tracks.age, jnp.zeros(M, jnp.int32)),
+        put(tracks.hits, jnp.ones(M, jnp.int32)), put(tracks.misses, jnp.zeros(M, jnp.int32)),
+        put(tracks.history, jnp.ones(M, jnp.int32)),
+        put(tracks.status, jnp.full(M, first, jnp.int32)),
+        put(tracks.heading, jnp.zeros(M, dtype)),
         appearance.Appearance(put(app.weights, jnp.zeros((M, cfg.num_features), dtype)),
                               put(app.bias, jnp.zeros(M, dtype))),
-        state.next_id + num_born,
-        state.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32))
-    return state
+        tracks.next_id + num_born,
+        tracks.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32))
+    return Births(new, born, slot)
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _noise(params, dtype):
+    r = jnp.exp(params.log_r_std).astype(dtype)
+    return (r**2)[:, None, None] * jnp.eye(2, dtype=dtype)
+
+
+def _position(dtype):
+    return measurement.position(4, dtype=dtype)
+
+
+def _marginals(h, params):
+    """JPDA marginals [K, M + 1] of the gated pairs (`associate_jpda`)."""
+    loglik = jnp.where(h.gated, h.innovations.log_likelihood, -jnp.inf)
+    p_d = jax.nn.sigmoid(params.logit_p_detect)
+    return association.jpda_marginals(loglik, p_d, jnp.exp(params.log_clutter_density), h.live,
+                                      h.mask, params.config.jpda_method, log=True)
+
+
+def _hard_update(h, col):
+    """`Association` of one detection per track (col [K], -1 none): a Kalman update each."""
+    M = h.zs.shape[0]
+    posts, _ = association.nn_update(h.predicted, h.zs, col, _position(h.zs.dtype), h.R,
+                                     sensor=h.sensor, track_mask=h.live)
+    hit = col >= 0
+    used = jnp.zeros(M, bool).at[jnp.where(hit, col, M)].set(True, mode="drop")
+    return Association(posts, hit, col, used)
+
+
+_ASSOCIATORS = {"gnn": associate_gnn, "jpda": associate_jpda, "nn_jpda": associate_nn_jpda}
 
 
 def _merged(mean, status, hits, ids, distance):
@@ -469,6 +765,22 @@ def _merged(mean, status, hits, ids, distance):
 
 def _popcount(x, bits):
     return sum((x >> i) & 1 for i in range(bits))
+
+
+def _check_stage(params, **args):
+    """TypeError unless ``params`` and each named stage argument have their types; the shape of
+    the tracks against ``params.config.capacity``."""
+    if not isinstance(params, TrackerParams):
+        raise TypeError(f"params must be TrackerParams; got {type(params).__name__}")
+    types = {"state": Tracks, "tracks": Tracks, "predicted": Gaussian, "hypotheses": Hypotheses,
+             "assoc": Association}
+    for name, value in args.items():
+        if not isinstance(value, types[name]):
+            raise TypeError(f"{name} must be a tracker.{types[name].__name__}; got "
+                            f"{type(value).__name__}")
+        if types[name] is Tracks:
+            _checks.check_shape(f"{name}.mean", value.mean, (params.config.capacity, 4),
+                                "the tracker capacity of params.config")
 
 
 def _check(state, det, params):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, multivariate_normal
 
-from jaxtrack import association
+from jaxtrack import association, metrics
 from jaxtrack.association import detections
 from tests.association.references import random_spd
 
@@ -75,6 +75,13 @@ def test_chi2_ppf_edges_and_usual_gates():
                                rtol=1e-13)
     traced = jax.jit(association.chi2_ppf, static_argnums=1)(jnp.array([0.95]), 3)
     np.testing.assert_allclose(np.asarray(traced), chi2.ppf([0.95], 3), rtol=1e-12)
+
+
+def test_chi2_ppf_above_two_dimensions_is_the_metrics_quantile():
+    p = np.array([1e-6, 0.05, 0.5, 0.99, 0.9999])
+    for dim in (3, 4, 6):
+        np.testing.assert_allclose(np.asarray(association.chi2_ppf(p, dim)),
+                                   np.asarray(metrics.chi2_ppf(p, float(dim))), rtol=1e-12)
 
 
 def test_chi2_ppf_rejects_a_bad_dim():

@@ -136,7 +136,7 @@ def track(truth, zs, masks, sensors, F, Q, mode):
 
     def step(state, frame):
         z, mask, sensor = frame
-        pred = jax.vmap(lambda m, P: kalman._predict(Gaussian(m, P), F, Q))(*state)
+        pred = jax.vmap(lambda m, P: kalman.predict(Gaussian(m, P), F, Q))(*state)
         post = association.sequential_jpda_update(
             pred, z, H, SENSOR_R, sensor, p_detect=P_DETECT, clutter_density=clutter,
             gate_prob=0.999, meas_mask=mask, hard=(mode == "nn_jpda")).posterior

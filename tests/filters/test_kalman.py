@@ -256,6 +256,34 @@ def test_update_with_mask_false_returns_state_unchanged_and_zero_log_likelihood(
     assert float(ll) != 0.0
 
 
+def test_step_functions_run_per_track_inside_jit_and_vmap():
+    """`predict` / `update` mapped over K tracks under jit (as `association.nn_update` and the
+    tracker call them) equal the eager calls; inside the trace, values are not checked."""
+    rng = np.random.default_rng(12)
+    K = 5
+    F, Q = (np.asarray(a) for a in motion.constant_velocity(0.1, 0.5))
+    H, R = np.eye(2, 4), _spd(rng, 2, 0.1)
+    means, covs = rng.standard_normal((K, 4)), np.stack([_spd(rng, 4, 1.0) for _ in range(K)])
+    zs, present = rng.standard_normal((K, 2)), np.array([True, False, True, True, False])
+
+    def step(m, P, z, mask):
+        return kalman.update(kalman.predict(Gaussian(m, P), F, Q), z, H, R, mask)
+
+    (post, ll) = jax.device_get(jax.jit(jax.vmap(step))(means, covs, zs, present))
+    for k in range(K):
+        ref, ref_ll = step(means[k], covs[k], zs[k], present[k])
+        np.testing.assert_allclose(post.mean[k], ref.mean, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(post.cov[k], ref.cov, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(ll[k], ref_ll, rtol=1e-12)
+    assert np.all(ll[~present] == 0) and np.all(ll[present] != 0)
+    bad = means.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="state.mean contains NaN"):
+        step(bad[0], covs[0], zs[0], True)
+    out = jax.device_get(jax.jit(jax.vmap(step))(bad, covs, zs, present))[0]
+    assert np.isnan(out.mean[0]).any() and np.isfinite(out.mean[1:]).all()
+
+
 # ---------------------------------------------------------------------------------------------
 # The constant-velocity benchmark: NaN handling, gradients, vmap, float32
 

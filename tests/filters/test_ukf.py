@@ -257,6 +257,20 @@ def test_log_likelihood_gradient_matches_finite_differences(cv_range_bearing_pro
     assert_close(np.array(grad), np.array(fd), 1e-6, "gradient vs central differences")
 
 
+def test_predict_maps_over_track_slots_inside_jit_like_the_kalman_prediction():
+    """`ukf.predict` vmapped over K slots under jit (as `tracking.tracker.predict` calls it):
+    for a linear f it is the Kalman prediction F m, F P F^T + Q, slot by slot."""
+    rng = np.random.default_rng(3)
+    K = 6
+    F, Q = (np.asarray(a) for a in motion.constant_velocity(0.1, 0.5))
+    means = rng.standard_normal((K, 4))
+    covs = np.stack([a @ a.T / 4 + 0.1 * np.eye(4) for a in rng.standard_normal((K, 4, 4))])
+    pred = jax.device_get(jax.jit(jax.vmap(
+        lambda m, P: ukf.predict(Gaussian(m, P), lambda x: F @ x, Q)))(means, covs))
+    np.testing.assert_allclose(pred.mean, means @ F.T, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(pred.cov, F @ covs @ F.T + Q, rtol=1e-10, atol=1e-14)
+
+
 def test_vmap_over_episodes_equals_python_loop(cv_range_bearing_problem, cv_rb_ukf,
                                                assert_close):
     run, _ = cv_rb_ukf

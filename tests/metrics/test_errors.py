@@ -204,6 +204,19 @@ def test_chi2_ppf_in_float32_is_accurate_to_1e_5():
     assert np.max(np.abs(np.asarray(got, np.float64) - ref) / ref) < 1e-5
 
 
+def test_chi2_ppf_traced_inside_jit_skips_the_value_checks_and_matches_eager():
+    # The gate quantile of `jaxtrack.association.chi2_ppf` calls it inside its own jit.
+    q, dof = np.array([0.01, 0.5, 0.9999]), np.array([3.0, 5.0, 8.0])
+    eager = np.asarray(metrics.chi2_ppf(q, dof))
+    np.testing.assert_allclose(np.asarray(jax.jit(lambda q: metrics.chi2_ppf(q, dof))(q)), eager,
+                               rtol=1e-14)
+    np.testing.assert_allclose(eager, stats.chi2.ppf(q, dof), rtol=1e-12)
+    # a traced q of 1.5 cannot be checked (it comes out NaN); a concrete one is rejected
+    assert np.isnan(jax.jit(metrics.chi2_ppf)(1.5, 3.0))
+    with pytest.raises(ValueError, match="q must lie"):
+        metrics.chi2_ppf(1.5, 3.0)
+
+
 @pytest.mark.parametrize("dof,num_samples,prob", [(2, 1, 0.95), (4, 50, 0.95), (6, 1000, 0.99),
                                                   (3, 20, 0.5)])
 def test_chi2_bounds_match_scipy(dof, num_samples, prob):

@@ -1,12 +1,20 @@
 """The fixed-capacity multi-target tracker: identities through a crossing, births, deaths, slot
-recycling, association modes, boundary checks."""
+recycling, association modes, boundary checks; and each stage of a scan (predict, hypothesise,
+associate_gnn / _jpda / _nn_jpda, manage, births) against numpy references: the Kalman
+prediction and update, scipy's chi-square quantile and Gaussian density, brute-force GNN
+assignments and JPDA marginals, and the M-of-N / miss / birth rules written as plain loops."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.stats import chi2, multivariate_normal
 
 from jaxtrack import metrics, tracking
+from jaxtrack.filters.kalman import Gaussian
+from jaxtrack.tracking import tracker
+from tests.association.references import (brute_force_marginals, kalman_posterior,
+                                          mixture_reference)
 
 M = 8
 CFG = {a: tracking.TrackerConfig(capacity=6, association=a) for a in ("gnn", "jpda", "nn_jpda")}
@@ -234,3 +242,409 @@ def test_merge_distance_keeps_one_track_per_person(merge):
 def test_merge_distance_must_be_non_negative():
     with pytest.raises(ValueError, match="merge_distance"):
         tracking.TrackerConfig(merge_distance=-0.1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The stages of one scan (predict -> hypothesise -> associate -> manage -> births), each
+# against a plain numpy / brute-force reference.
+
+SENSOR_STD = (0.1, 0.3)
+
+
+def stage_params(assoc="gnn", **kw):
+    cfg = tracking.TrackerConfig(capacity=6, association=assoc,
+                                 **{k: kw.pop(k) for k in list(kw) if k in _CONFIG_FIELDS})
+    return tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=SENSOR_STD,
+                                         clutter_density=0.05, dtype=jnp.float64, **kw)
+
+
+_CONFIG_FIELDS = {f.name for f in tracking.TrackerConfig.__dataclass_fields__.values()}
+
+
+def stage_scene(params, seed=0):
+    """Six slots (0-3 live, 0 and 1 close enough to compete for detections; 4, 5 free) and a
+    scan of eight slots: detections near the tracks from two sensors, far clutter, a NaN
+    detection under a True mask and an empty slot."""
+    rng = np.random.default_rng(seed)
+    K, F = params.config.capacity, params.config.num_features
+    pos = np.array([[0.0, 0.0], [0.35, 0.1], [3.0, 3.0], [-3.0, 2.0], [9.0, 9.0], [0.0, 0.0]])
+    mean = np.concatenate([pos, rng.uniform(-0.5, 0.5, (K, 2))], 1)
+    cov = np.stack([np.diag([0.04, 0.05, 0.3, 0.3]) + 0.005 * (a @ a.T)
+                    for a in rng.standard_normal((K, 4, 4))])
+    status = np.array([2, 2, 1, 2, 0, 0])
+    state = tracking.init(params.config, jnp.float64)._replace(
+        mean=jnp.asarray(mean), cov=jnp.asarray(cov), status=jnp.asarray(status, jnp.int32),
+        id=jnp.asarray(np.where(status > 0, [4, 2, 6, 5, -1, -1], -1), jnp.int32),
+        hits=jnp.asarray([9, 7, 2, 4, 0, 0], jnp.int32),
+        age=jnp.asarray([12, 9, 2, 6, 0, 0], jnp.int32),
+        history=jnp.asarray([31, 29, 3, 15, 0, 0], jnp.int32), next_id=jnp.int32(7),
+        appearance=tracker.appearance.Appearance(jnp.asarray(rng.standard_normal((K, F))),
+                                                 jnp.asarray(rng.standard_normal(K))))
+    z = np.array([[0.05, 0.02], [0.25, 0.05], [0.4, 0.15], [3.05, 2.9], [2.8, 3.2],
+                  [-4.5, -4.0], [np.nan, 0.0], [0.0, 0.0]])
+    z[:6] += 0.01 * rng.standard_normal((6, 2))
+    det = tracking.Detections(jnp.asarray(z), jnp.asarray([True] * 7 + [False]),
+                              jnp.asarray([0, 1, 0, 0, 1, 0, 0, 0], jnp.int32),
+                              jnp.asarray(rng.uniform(0.2, 1.0, 8)),
+                              jnp.asarray(rng.uniform(0, 1, (8, F))))
+    return state, det
+
+
+def reference_prediction(state, params):
+    F = np.kron(np.array([[1.0, 0.1], [0.0, 1.0]]), np.eye(2))
+    Q = 0.5 * np.kron(np.array([[0.1**3 / 3, 0.1**2 / 2], [0.1**2 / 2, 0.1]]), np.eye(2))
+    live = np.asarray(state.status) != tracking.FREE
+    mean, cov = np.array(state.mean), np.array(state.cov)
+    mean[live] = mean[live] @ F.T
+    cov[live] = F @ cov[live] @ F.T + Q
+    return mean, cov, live
+
+
+def reference_gates(state, det, params):
+    """d2 and log N(z; Hm, S) [K, M] with each detection's sensor noise, and the chi-square
+    gate, in numpy / scipy."""
+    mean, cov, live = reference_prediction(state, params)
+    z, present = np.asarray(det.positions), np.asarray(det.mask)
+    present = present & np.all(np.isfinite(z), -1)
+    H = np.eye(2, 4)
+    K, M = len(mean), len(z)
+    d2, ll = np.full((K, M), np.inf), np.full((K, M), -np.inf)
+    for k in np.flatnonzero(live):
+        for j in np.flatnonzero(present):
+            S = H @ cov[k] @ H.T + SENSOR_STD[np.asarray(det.sensor)[j]] ** 2 * np.eye(2)
+            y = z[j] - H @ mean[k]
+            d2[k, j] = y @ np.linalg.solve(S, y)
+            ll[k, j] = multivariate_normal.logpdf(y, np.zeros(2), S)
+    gated = d2 <= chi2.ppf(float(params.gate_prob), 2)
+    return d2, gated, mean, cov, live, present, ll
+
+
+@pytest.mark.parametrize("filt", ["kf", "ukf"])
+def test_predict_is_the_constant_velocity_kalman_prediction_of_live_slots(filt):
+    params = stage_params(filter=filt)
+    state, _ = stage_scene(params)
+    pred = tracker.predict(state, params)
+    mean, cov, live = reference_prediction(state, params)
+    np.testing.assert_allclose(np.asarray(pred.mean), mean, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(pred.cov), cov, rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(np.asarray(pred.mean)[~live], np.asarray(state.mean)[~live])
+
+
+def test_hypothesise_gates_with_each_sensors_noise_and_the_chi_square_quantile():
+    params = stage_params(num_features=3)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    d2, gated, _, _, live, present, ll = reference_gates(state, det, params)
+    np.testing.assert_array_equal(np.asarray(hyp.live), live)
+    np.testing.assert_array_equal(np.asarray(hyp.mask), present)
+    np.testing.assert_allclose(np.asarray(hyp.innovations.d2), d2, rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(hyp.innovations.log_likelihood), ll, rtol=1e-10)
+    np.testing.assert_array_equal(np.asarray(hyp.gated), gated)
+    assert gated[0, :3].sum() >= 2 and gated[1, :3].sum() >= 2   # tracks 0 and 1 compete
+    assert not gated[:, 5].any()                                  # clutter gated by nobody
+    w, b = (np.asarray(a) for a in state.appearance)
+    np.testing.assert_allclose(np.asarray(hyp.appearance),
+                               1 / (1 + np.exp(-(w @ np.asarray(det.features).T + b[:, None]))),
+                               rtol=1e-12)
+    assert np.all(np.asarray(hyp.zs)[~present] == 0)
+
+
+def brute_force_gnn(cost, gated):
+    """Max-cardinality, then min-cost assignment inside the gates, by enumeration."""
+    K = cost.shape[0]
+    best = [(0, 0.0), [-1] * K]
+
+    def visit(k, chosen, n, total):
+        if k == K:
+            if n > best[0][0] or (n == best[0][0] and total < best[0][1]):
+                best[:] = [(n, total), list(chosen)]
+            return
+        visit(k + 1, chosen + [-1], n, total)
+        for j in np.flatnonzero(gated[k]):
+            if j not in chosen:
+                visit(k + 1, chosen + [int(j)], n + 1, total + cost[k, j])
+
+    visit(0, [], 0, 0.0)
+    return np.array(best[1])
+
+
+def check_hard_update(assoc, col, mean, cov, det, live):
+    """The posterior of a hard association: a Kalman update with each track's detection."""
+    H = np.eye(2, 4)
+    z = np.asarray(det.positions)
+    np.testing.assert_array_equal(np.asarray(assoc.col), col)
+    np.testing.assert_array_equal(np.asarray(assoc.hit), col >= 0)
+    used = np.zeros(z.shape[0], bool)
+    used[col[col >= 0]] = True
+    np.testing.assert_array_equal(np.asarray(assoc.used), used)
+    for k in range(len(col)):
+        if col[k] >= 0:
+            R = SENSOR_STD[np.asarray(det.sensor)[col[k]]] ** 2 * np.eye(2)
+            m, P = kalman_posterior(mean[k], cov[k], z[col[k]], H, R)
+        else:
+            m, P = mean[k], cov[k]
+        np.testing.assert_allclose(np.asarray(assoc.posterior.mean[k]), m, rtol=1e-9,
+                                   atol=1e-12)
+        np.testing.assert_allclose(np.asarray(assoc.posterior.cov[k]), P, rtol=1e-8,
+                                   atol=1e-12)
+
+
+def test_associate_gnn_is_the_brute_force_optimum_of_the_three_term_cost():
+    params = stage_params(num_features=3, alpha=0.7, beta=2.0)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    assoc = tracker.associate_gnn(hyp, params)
+    d2, gated, mean, cov, live, _, _ = reference_gates(state, det, params)
+    cost = (d2 - 0.7 * np.asarray(hyp.appearance)
+            - 2.0 * np.asarray(det.confidence)[None, :])
+    col = brute_force_gnn(cost, gated)
+    assert (col[:2] >= 0).all()
+    check_hard_update(assoc, col, mean, cov, det, live)
+
+
+def test_associate_jpda_is_the_brute_force_marginals_and_the_mixture_update():
+    params = stage_params("jpda", p_detect=0.9)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    assoc = tracker.associate_jpda(hyp, params)
+    _, gated, mean, cov, live, present, ll = reference_gates(state, det, params)
+    beta = reference_marginals(ll, gated, live, present)
+    M = beta.shape[1] - 1
+    hit = live & (beta[:, M] < 0.5)
+    col = np.where(hit & (beta[:, :M].max(1) > 0.5), beta[:, :M].argmax(1), -1)
+    np.testing.assert_array_equal(np.asarray(assoc.hit), hit)
+    np.testing.assert_array_equal(np.asarray(assoc.col), col)
+    np.testing.assert_array_equal(np.asarray(assoc.used), beta[live, :M].sum(0) >= 0.5)
+    assert hit[:2].all() and not hit[3]
+    z = np.where(present[:, None], np.asarray(det.positions), 0.0)
+    Rs = np.array([SENSOR_STD[s] ** 2 * np.eye(2) for s in np.asarray(det.sensor)])
+    for k in range(len(live)):
+        m, P = (mixture_reference(mean[k], cov[k], z[present], beta[k][np.append(present, True)],
+                                  np.eye(2, 4), Rs[present]) if live[k] else (mean[k], cov[k]))
+        np.testing.assert_allclose(np.asarray(assoc.posterior.mean[k]), m, rtol=1e-9,
+                                   atol=1e-12)
+        np.testing.assert_allclose(np.asarray(assoc.posterior.cov[k]), P, rtol=1e-8,
+                                   atol=1e-12)
+
+
+def reference_marginals(ll, gated, live, present):
+    """Brute-force JPDA marginals [K, M + 1] over the live tracks and present detections."""
+    K, M = gated.shape
+    L = np.where(gated, np.exp(ll), 0.0)
+    rows, cols = np.flatnonzero(live), np.flatnonzero(present)
+    sub = brute_force_marginals(L[np.ix_(rows, cols)], 0.9, 0.05)
+    beta = np.zeros((K, M + 1))
+    beta[:, M] = 1.0
+    beta[np.ix_(rows, np.r_[cols, M])] = sub
+    return beta
+
+
+def greedy_nn(beta):
+    """NN-JPDA choice: the largest marginal first among open tracks and free detections."""
+    K, M = beta.shape[0], beta.shape[1] - 1
+    col, open_rows, taken = np.full(K, -1), set(range(K)), set()
+    for _ in range(K):
+        cands = [(beta[t, j], -t, -j) for t in open_rows for j in range(M + 1)
+                 if j == M or (beta[t, j] > 0 and j not in taken)]
+        _, t, j = max(cands)
+        t, j = -t, -j
+        open_rows.discard(t)
+        if j < M:
+            col[t] = j
+            taken.add(j)
+    return col
+
+
+def test_associate_nn_jpda_takes_the_map_detection_greedily_then_a_kalman_update():
+    params = stage_params("nn_jpda", p_detect=0.9)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    assoc = tracker.associate_nn_jpda(hyp, params)
+    _, gated, mean, cov, live, present, ll = reference_gates(state, det, params)
+    col = np.where(live, greedy_nn(reference_marginals(ll, gated, live, present)), -1)
+    assert (col[:2] >= 0).all()
+    check_hard_update(assoc, col, mean, cov, det, live)
+
+
+@pytest.mark.parametrize("assoc", ["gnn", "jpda", "nn_jpda"])
+def test_step_is_its_stages_in_order(assoc):
+    """`step` (jitted, as the closed loops call it) equals the stages called one by one, with
+    the association picked by name; bit for bit."""
+    params = params_for(assoc)
+    associate = {"gnn": tracker.associate_gnn, "jpda": tracker.associate_jpda,
+                 "nn_jpda": tracker.associate_nn_jpda}[assoc]
+
+    def stages(state, det, params):
+        hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+        a = associate(hyp, params)
+        return tracker.births(tracker.manage(state, hyp, a, params), hyp, a, params).tracks
+
+    step, chain = jax.jit(tracking.step), jax.jit(stages)
+    det, _ = scenario(3, T=25)
+    a = b = tracking.init(params.config, jnp.float64)
+    for t in range(25):
+        frame = jax.tree.map(lambda x: x[t], det)
+        a, b = step(a, frame, params), chain(b, frame, params)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert int(a.next_id) >= 2
+
+
+def managed_reference(state, hit, cov, params):
+    """Plain-Python M-of-N confirmation and miss / std deletion of every slot."""
+    cfg = params.config
+    out = []
+    for k in range(cfg.capacity):
+        status, history = int(state.status[k]), int(state.history[k])
+        hits, misses, age = int(state.hits[k]), int(state.misses[k]), int(state.age[k])
+        if status != tracking.FREE:
+            history = ((history << 1) | int(hit[k])) & ((1 << cfg.confirm_window) - 1)
+            hits, misses, age = hits + hit[k], 0 if hit[k] else misses + 1, age + 1
+            if status == tracking.TENTATIVE and bin(history).count("1") >= cfg.confirm_hits:
+                status = tracking.CONFIRMED
+            limit = (cfg.max_tentative_misses if status == tracking.TENTATIVE
+                     else cfg.max_misses)
+            if misses >= limit or max(cov[k][0, 0], cov[k][1, 1]) > cfg.max_position_std**2:
+                status = tracking.FREE
+        if status == tracking.FREE:
+            out.append((tracking.FREE, -1, 0, 0, 0, 0))
+        else:
+            out.append((status, int(state.id[k]), age, hits, misses, history))
+    return np.array(out)
+
+
+def fake_association(hyp, hit, cov=None):
+    cov = hyp.predicted.cov if cov is None else jnp.asarray(cov)
+    K, M = hit.shape[0], hyp.zs.shape[0]
+    return tracker.Association(Gaussian(hyp.predicted.mean, cov), jnp.asarray(hit),
+                               jnp.full(K, -1, jnp.int32), jnp.zeros(M, bool))
+
+
+def test_manage_confirms_m_of_n_and_deletes_after_misses_or_a_wide_covariance():
+    params = stage_params()
+    cfg = params.config
+    state, det = stage_scene(params)
+    # slot 0 confirmed, one miss short of deletion; slot 1 confirmed, two short; slot 2
+    # tentative, one short; slot 3 tentative with 2 of 3 hits; slot 4 confirmed but too wide
+    state = state._replace(
+        status=jnp.asarray([2, 2, 1, 1, 2, 0], jnp.int32),
+        id=jnp.asarray([4, 2, 6, 5, 1, -1], jnp.int32),
+        misses=jnp.asarray([cfg.max_misses - 1, cfg.max_misses - 2,
+                            cfg.max_tentative_misses - 1, 0, 0, 0], jnp.int32),
+        history=jnp.asarray([1, 3, 1, 3, 31, 0], jnp.int32))
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    hit = np.array([False, False, False, True, True, False])
+    cov = np.array(hyp.predicted.cov)
+    cov[4, 0, 0] = 1.6**2
+    out = tracker.manage(state, hyp, fake_association(hyp, hit, cov), params)
+    ref = managed_reference(state, hit, cov, params)
+    got = np.stack([np.asarray(x) for x in (out.status, out.id, out.age, out.hits, out.misses,
+                                            out.history)], 1)
+    np.testing.assert_array_equal(got, ref)
+    assert got[:, 0].tolist() == [0, 2, 0, 2, 0, 0]
+    assert int(out.next_id) == 7
+
+
+def test_manage_deletes_a_confirmed_track_at_its_max_misses_th_miss():
+    params = stage_params(max_misses=4)
+    state, det = stage_scene(params)
+    no_hit = np.zeros(6, bool)
+    alive = []
+    for _ in range(6):
+        hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+        state = tracker.manage(state, hyp, fake_association(hyp, no_hit), params)
+        alive.append(int(state.status[0]))
+    assert alive == [2, 2, 2, 0, 0, 0], alive
+
+
+def test_manage_merges_the_weaker_of_two_close_tracks():
+    params = stage_params(merge_distance=0.4)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    hit = np.array([True, True, True, True, False, False])
+    cases = {  # (status, hits, id) of slots 0 and 1 -> the slot that survives
+        "confirmed beats tentative": ([1, 2], [9, 3], [1, 2], 1),
+        "more hits win": ([2, 2], [5, 6], [1, 2], 1),
+        "the older id wins": ([2, 2], [6, 6], [3, 2], 1),
+    }
+    for name, (status, hits, ids, keep) in cases.items():
+        s = state._replace(status=state.status.at[:2].set(jnp.asarray(status, jnp.int32)),
+                           history=state.history.at[:2].set(0),
+                           hits=state.hits.at[:2].set(jnp.asarray(hits, jnp.int32) - 1),
+                           id=state.id.at[:2].set(jnp.asarray(ids, jnp.int32)))
+        out = tracker.manage(s, hyp, fake_association(hyp, hit), params)
+        live = np.asarray(out.status[:2]) != tracking.FREE
+        assert live.tolist() == [keep == 0, keep == 1], name
+        assert (np.asarray(out.status[2:4]) != tracking.FREE).all(), name
+
+
+def test_births_fill_free_slots_in_order_with_increasing_ids():
+    params = stage_params(birth_confidence=0.5, init_speed_std=0.8)
+    state, _ = stage_scene(params)
+    K, M = 6, 8
+    state = state._replace(status=jnp.asarray([0, 2, 0, 1, 0, 0], jnp.int32),
+                           id=jnp.asarray([-1, 2, -1, 5, -1, -1], jnp.int32),
+                           num_dropped=jnp.int32(3))
+    z = np.array([[0.35, 0.1], [1.5, -2.0], [-1.0, -1.0], [4.0, 0.0], [5.0, -3.0],
+                  [-4.0, -4.0], [0.0, 4.5], [2.0, -4.5]])
+    conf = np.array([1.0, 1.0, 0.2, 0.9, 0.6, 1.0, 0.7, 0.8])
+    det = tracking.Detections(jnp.asarray(z), jnp.ones(M, bool),
+                              jnp.asarray([0, 0, 0, 1, 0, 1, 0, 0], jnp.int32),
+                              jnp.asarray(conf), jnp.zeros((M, 0)))
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    used = np.zeros(M, bool)
+    used[1] = True
+    assoc = tracker.Association(hyp.predicted, jnp.zeros(K, bool), jnp.full(K, -1, jnp.int32),
+                                jnp.asarray(used))
+    out = tracker.births(state, hyp, assoc, params)
+    # detection 0 is in track 1's gate, 1 is used, 2 is below the confidence threshold; 3..7
+    # are eligible and the four free slots 0, 2, 4, 5 take 3, 4, 5, 6; 7 finds no slot
+    assert bool(np.asarray(hyp.gated)[1, 0])
+    np.testing.assert_array_equal(np.asarray(out.born), [0, 0, 0, 1, 1, 1, 1, 0])
+    np.testing.assert_array_equal(np.asarray(out.slot), [6, 6, 6, 0, 2, 4, 5, 6])
+    tr = out.tracks
+    np.testing.assert_array_equal(np.asarray(tr.id), [7, 2, 8, 5, 9, 10])
+    assert int(tr.next_id) == 11 and int(tr.num_dropped) == 4
+    for j, k in zip([3, 4, 5, 6], [0, 2, 4, 5]):
+        r2 = SENSOR_STD[int(det.sensor[j])] ** 2
+        np.testing.assert_array_equal(np.asarray(tr.mean[k]), [*z[j], 0.0, 0.0])
+        np.testing.assert_allclose(np.asarray(tr.cov[k]), np.diag([r2, r2, 0.64, 0.64]),
+                                   rtol=1e-12)
+        assert [int(tr.status[k]), int(tr.hits[k]), int(tr.history[k]), int(tr.age[k]),
+                int(tr.misses[k])] == [tracking.TENTATIVE, 1, 1, 0, 0]
+    for k in (1, 3):  # live tracks are untouched
+        for x, y in zip(jax.tree.leaves(tr), jax.tree.leaves(state)):
+            if np.ndim(x):
+                np.testing.assert_array_equal(np.asarray(x)[k], np.asarray(y)[k])
+
+
+def test_births_with_merge_distance_start_one_track_per_cluster_of_detections():
+    params = stage_params(merge_distance=0.4)
+    state = tracking.init(params.config, jnp.float64)
+    z = np.array([[1.0, 1.0], [1.2, 1.1], [3.0, 0.0], [1.0, 1.35], [3.5, 0.0]])
+    det = tracking.make_detections(z, 6, sensor=[1, 0, 0, 1, 0])
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    assoc = tracker.Association(hyp.predicted, jnp.zeros(6, bool), jnp.full(6, -1, jnp.int32),
+                                jnp.zeros(6, bool))
+    out = tracker.births(state, hyp, assoc, params)
+    # 1 and 3 are within 0.4 m of the earlier 0; 4 is 0.5 m from 2
+    np.testing.assert_array_equal(np.asarray(out.born), [1, 0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(np.asarray(out.tracks.id[:3]), [0, 1, 2])
+
+
+def test_stages_reject_arguments_of_the_wrong_kind():
+    params = stage_params()
+    state, det = stage_scene(params)
+    pred = tracker.predict(state, params)
+    hyp = tracker.hypothesise(state, pred, det, params)
+    assoc = tracker.associate(hyp, params)
+    with pytest.raises(TypeError, match="params must be TrackerParams"):
+        tracker.predict(state, params.config)
+    with pytest.raises(TypeError, match="predicted must be"):
+        tracker.hypothesise(state, (pred.mean, pred.cov), det, params)
+    with pytest.raises(TypeError, match="hypotheses must be a tracker.Hypotheses"):
+        tracker.associate_jpda(assoc, params)
+    with pytest.raises(TypeError, match="assoc must be a tracker.Association"):
+        tracker.manage(state, hyp, hyp, params)
+    with pytest.raises(ValueError, match="capacity"):
+        tracker.births(tracking.init(tracking.TrackerConfig(capacity=3)), hyp, assoc, params)
