@@ -34,6 +34,7 @@ import numpy as np
 from mujoco import mjx
 
 from jaxtrack import _checks
+from sims.following import layout as layout_mod
 from sims.following import pedestrians
 from sims.following.pedestrians import GaitParams, PedestrianConfig, PedestrianState
 
@@ -52,29 +53,14 @@ _WALL_THICKNESS = 0.1
 
 
 def furniture_layout(room=(10.0, 8.0)) -> list[dict]:
-    """Tables and chairs of a room: dicts with ``kind``, ``centre`` (x, y), ``size``, ``height``,
-    ``leg_radius`` and ``legs`` [4, 2] leg centres.
-
-    Two tables at :math:`(\\mp W/4, \\pm H/5)`, each with a chair on either long side.
-    """
-    W, H = room
-    items = []
-    for sx in (-1.0, 1.0):
-        centre = np.array([0.25 * W * sx, -0.2 * H * sx])
-        for kind, spec, offsets in (("table", _TABLE, (0.0,)),
-                                    ("chair", _CHAIR, (-_CHAIR["offset"], _CHAIR["offset"]))):
-            for dy in offsets:
-                c = centre + np.array([0.0, dy])
-                hx, hy = 0.5 * spec["size"][0] - spec["inset"], 0.5 * spec["size"][1] - spec["inset"]
-                legs = c + np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
-                items.append(dict(kind=kind, centre=c, size=spec["size"], height=spec["height"],
-                                  leg_radius=spec["leg_radius"], legs=legs))
-    return items
+    """Tables and chairs of a room (`sims.following.layout.room`): dicts with ``kind``,
+    ``centre`` (x, y), ``size``, ``height``, ``leg_radius`` and ``legs`` [4, 2] leg centres."""
+    return list(layout_mod.room(room).furniture)
 
 
 def _footprints(items) -> np.ndarray:
-    """One disc per table group (table + chairs): [F, 3] (x, y, radius)."""
-    tables = [it for it in items if it["kind"] == "table"]
+    """One disc per table group (table + chairs) or display: [F, 3] (x, y, radius)."""
+    tables = [it for it in items if it["kind"] in ("table", "display")]
     out = []
     for t in tables:
         group = [it for it in items if np.linalg.norm(it["centre"] - t["centre"]) < 1.5]
@@ -101,8 +87,10 @@ class Scene:
         and furniture with contacts). The people are kinematic and, without contacts, nothing
         else acts on the robot, so leaving them out gives the same motion for a fraction of the
         cost (``mjx.step`` would otherwise pose 25 bodies and 70 geoms at every sub-step).
-      furniture: tuple of furniture dicts (`furniture_layout`), empty without furniture.
-      footprints: [F, 3] discs (x, y, radius) around each table and its chairs.
+      furniture: tuple of furniture dicts (on legs), empty without furniture.
+      footprints: [F, 3] discs (x, y, radius) around each table and its chairs, or display.
+      physics_model: see above.
+      layout: the `sims.following.layout.Layout` (its blocks: shelves, end caps, counters).
     """
 
     model: mujoco.MjModel
@@ -118,6 +106,12 @@ class Scene:
     furniture: tuple
     footprints: np.ndarray
     physics_model: mjx.Model
+    layout: layout_mod.Layout = None
+
+    @property
+    def blocks(self) -> tuple:
+        """Solid boxes (shelves, end caps, counters) of the layout; empty in the room."""
+        return () if self.layout is None else self.layout.blocks
 
     @property
     def leg_radius(self) -> float:
@@ -142,16 +136,21 @@ class Scene:
         return centres, radii
 
     def wall_segments(self) -> np.ndarray:
-        """Inner faces of the four walls as segments [4, 2, 2] (start, end) x (x, y)."""
+        """Inner faces of the four walls, then the edges of the blocks, as segments
+        [4 + 4 B, 2, 2] (start, end) x (x, y)."""
         hw, hh = 0.5 * self.room[0], 0.5 * self.room[1]
         corners = np.array([[hw, -hh], [hw, hh], [-hw, hh], [-hw, -hh]])
-        return np.stack([corners, np.roll(corners, -1, axis=0)], 1)
+        walls = np.stack([corners, np.roll(corners, -1, axis=0)], 1)
+        if not self.blocks:
+            return walls
+        return np.concatenate([walls, layout_mod.block_segments(self.blocks)], 0)
 
 
 def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: float = 0.05,
          contacts: bool = False, gait: GaitParams = GaitParams(),
          robot_size=(0.5, 0.4, 0.3), robot_radius: float = 0.3, robot_mass: float = 20.0,
-         servo_rate: float = 1000.0, room_geoms: bool = True) -> str:
+         servo_rate: float = 1000.0, room_geoms: bool = True,
+         layout: layout_mod.Layout | None = None) -> str:
     """The scene's MJCF string (robot at the origin facing +x, people parked below the floor).
 
     Args:
@@ -159,6 +158,7 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
         the hinge). 1000/s tracks a velocity step within one 0.05 s step to 2 %.
       room_geoms: include the floor, walls and furniture (`build`'s physics-only model leaves
         them out when they cannot touch the robot).
+      layout: the floor plan (`sims.following.layout`); default the room of size ``room``.
       The other arguments are `build`'s.
 
     Example:
@@ -176,10 +176,16 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
     <geom name="wall_py" type="box" pos="0 {hh + t} {wz}" size="{hw} {t} {wz}" material="wall" {static}/>
     <geom name="wall_ny" type="box" pos="0 {-hh - t} {wz}" size="{hw} {t} {wz}" material="wall" {static}/>"""
     furn = []
+    lay = layout_mod.room(room) if layout is None else layout
     if not room_geoms:
         walls = ""
+    if room_geoms:
+        for i, b in enumerate(lay.blocks):
+            (cx, cy), (sx, sy), h = b["centre"], b["size"], b["height"]
+            furn.append(f'    <geom name="{b["kind"]}{i}" type="box" pos="{cx} {cy} {0.5 * h}" '
+                        f'size="{0.5 * sx} {0.5 * sy} {0.5 * h}" material="shelf" {static}/>')
     if furniture and room_geoms:
-        for i, it in enumerate(furniture_layout(room)):
+        for i, it in enumerate(lay.furniture):
             r, h = it["leg_radius"], it["height"]
             top = 0.02
             for j, (lx, ly) in enumerate(it["legs"]):
@@ -219,6 +225,7 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
     <material name="floor" rgba="0.55 0.5 0.45 1"/>
     <material name="wall" rgba="0.85 0.85 0.8 1"/>
     <material name="wood" rgba="0.6 0.4 0.25 1"/>
+    <material name="shelf" rgba="0.75 0.75 0.7 1"/>
     <material name="robot" rgba="0.2 0.3 0.8 1"/>
     <material name="person" rgba="0.8 0.3 0.3 1"/>
     <material name="skin" rgba="0.9 0.75 0.6 1"/>
@@ -249,7 +256,7 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
 
 def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: float = 0.05,
           contacts: bool = False, gait: GaitParams = GaitParams(), robot_size=(0.5, 0.4, 0.3),
-          robot_radius: float = 0.3) -> Scene:
+          robot_radius: float = 0.3, layout: str = "room") -> Scene:
     """Build the scene: MJCF -> ``mujoco.MjModel`` -> ``mjx.Model``, plus the laser geometry.
 
     Args:
@@ -264,10 +271,20 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
       gait: `GaitParams` of the people.
       robot_size: (length, width, height) of the robot's box (m).
       robot_radius: radius of its collision sphere (m).
+      layout: "room" (a ``room``-sized room, with two tables and four chairs when
+        ``furniture``) or "shop" (`sims.following.layout.shop`: its own size, shelves, counter
+        and displays; ``room`` and ``furniture`` are ignored).
 
     Example:
-      >>> scene = build(num_people=4)
+      >>> scene = build(num_people=4, layout="shop")
     """
+    if layout not in layout_mod.LAYOUTS:
+        raise ValueError(f"unknown layout {layout!r}; choose one of {layout_mod.LAYOUTS}")
+    if layout == "shop":
+        lay = layout_mod.shop()
+        room, furniture = lay.room, True
+    else:
+        lay = layout_mod.room(tuple(float(x) for x in room))
     if not 1 <= int(num_people) <= 16:
         raise ValueError(f"num_people must be in [1, 16]; got {num_people}")
     W, H = (float(x) for x in room)
@@ -276,21 +293,22 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
                          f"furniture)")
     if not 0.005 <= dt <= 0.05:
         raise ValueError(f"dt must be in [0.005, 0.05] s; got {dt}")
-    xml = mjcf(int(num_people), (W, H), furniture, dt, contacts, gait, robot_size, robot_radius)
+    xml = mjcf(int(num_people), (W, H), furniture, dt, contacts, gait, robot_size, robot_radius,
+               layout=lay)
     model = mujoco.MjModel.from_xml_string(xml)
     mx = mjx.put_model(model)
     torso = np.array([model.body_mocapid[model.body(f"person{p}_torso").id]
                       for p in range(num_people)])
     legs = np.array([[model.body_mocapid[model.body(f"person{p}_{s}_leg").id] for s in "lr"]
                      for p in range(num_people)])
-    items = tuple(furniture_layout((W, H))) if furniture else ()
+    items = tuple(lay.furniture) if furniture else ()
     physics = mujoco.MjModel.from_xml_string(
         mjcf(0, (W, H), furniture, dt, contacts, gait, robot_size, robot_radius,
-             room_geoms=contacts))
+             room_geoms=contacts, layout=lay))
     assert (physics.nq, physics.nv, physics.nu) == (model.nq, model.nv, model.nu)
     return Scene(model, mx, (W, H), float(dt), int(num_people), gait, float(robot_radius),
                  torso, legs, model.geom("robot_collision").id, items, _footprints(items),
-                 mjx.put_model(physics))
+                 mjx.put_model(physics), lay)
 
 
 def pedestrian_config(scene: Scene, **overrides) -> PedestrianConfig:
