@@ -3,6 +3,7 @@ point (seed 004, eq. 9), the person-interest-adapted potential field (seed 002, 
 window for obstacles, routes around the static obstacles of a map, and the following behaviour
 that chains them."""
 
-from jaxtrack.control import avoidance, behaviour, follower, pose, potential_field, route
+from jaxtrack.control import (avoidance, behaviour, follower, pan_tilt, pose, potential_field,
+                              route)
 
-__all__ = ["avoidance", "behaviour", "follower", "pose", "potential_field", "route"]
+__all__ = ["avoidance", "behaviour", "follower", "pan_tilt", "pose", "potential_field", "route"]

@@ -17,7 +17,9 @@ the estimate and the wheel command:
 4. **safety stop**: no forward motion while a laser return lies in the robot's path (ahead, within
    the robot's half-width plus ``corridor_margin``) within ``stop_distance`` of its centre
    (backing away stays possible);
-5. **lost / search / look**: a user unseen for longer than ``lost_timeout`` stops the robot's
+5. **camera**: with a pan unit (``pan``), the RGB-D camera is servoed to keep the user's
+   estimate centred (`jaxtrack.control.pan_tilt`), or the person to look at while looking;
+6. **lost / search / look**: a user unseen for longer than ``lost_timeout`` stops the robot's
    driving; after ``search_after`` it turns on the spot at ``search_rate`` toward the side where
    the user was last estimated, keeping that direction (a stale estimate must not make it swing
    back and forth); with an estimate of whom to look at (`jaxtrack.tracking.user.UserEstimate`'s
@@ -45,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import geometry
-from jaxtrack.control import avoidance, follower, route
+from jaxtrack.control import avoidance, follower, pan_tilt, route
 
 Array = jax.Array
 
@@ -77,6 +79,7 @@ class FollowingConfig:
         route_cell: the route grid (m); route_clearance: distance (m) from furniture below
         which the straight line counts as blocked; the route's cells keep
         ``robot_radius + safety_margin + route_margin`` from furniture and walls.
+      pan: `pan_tilt.PanTiltConfig` of the camera's pan unit, or None (a fixed camera).
     """
 
     safety_margin: float = 0.3
@@ -94,6 +97,7 @@ class FollowingConfig:
     route_cell: float = 0.25
     route_clearance: float = 0.3
     route_margin: float = 0.05
+    pan: pan_tilt.PanTiltConfig | None = None
 
     def __post_init__(self):
         if not self.safety_margin >= 0:
@@ -142,18 +146,32 @@ class FollowingInputs(NamedTuple):
 
 class FollowingState(NamedTuple):
     """u: [2] the last command (v, omega); unseen: seconds since the user was last measured;
-    search_side: +1 / -1, the direction of the search turn."""
+    search_side: +1 / -1, the direction of the search turn; pan: the camera's
+    `pan_tilt.PanState` (None without a pan unit)."""
 
     u: Array
     unseen: Array
     search_side: Array
+    pan: pan_tilt.PanState | None = None
 
 
 class Command(NamedTuple):
-    """u: [2] the wheel command (v, omega); stopped: bool, the safety stop held the robot."""
+    """What the behaviour decided, and why.
+
+    Attributes:
+      u: [2] the wheel command (v, omega); stopped: bool, the safety stop held the robot.
+      pan: the camera's pan angle for the next frame (rad; None without a pan unit).
+      direct: bool, the robot steered straight at the user (False: along a route around the
+        known obstacles; True without a map).
+      avoidance: int32 `avoidance.AvoidanceInfo.case` (0: the law's command, 1: replaced,
+        2: blocked; -1 without the avoidance layer).
+    """
 
     u: Array
     stopped: Array
+    pan: Array | None = None
+    direct: Array | None = None
+    avoidance: Array | None = None
 
 
 class Behaviour(NamedTuple):
@@ -185,7 +203,9 @@ def following(config: FollowingConfig, *, robot_radius: float, dt: float,
                              dtype=dtype)
 
     def init(dtype=dtype) -> FollowingState:
-        return FollowingState(jnp.zeros(2, dtype), jnp.zeros((), dtype), jnp.ones((), dtype))
+        pan = None if cfg.pan is None else pan_tilt.init(dtype)
+        return FollowingState(jnp.zeros(2, dtype), jnp.zeros((), dtype), jnp.ones((), dtype),
+                              pan)
 
     def step(state: FollowingState, x: FollowingInputs, fol: follower.Params):
         dtype = state.u.dtype
@@ -193,20 +213,24 @@ def following(config: FollowingConfig, *, robot_radius: float, dt: float,
         lost_now = unseen > cfg.lost_timeout
         rel = x.user
         vel = x.user_vel * (unseen <= cfg.lost_timeout)
-        goal, goal_vel = rel, vel
+        goal, goal_vel, direct = rel, vel, jnp.asarray(True)
         if routes is not None:
-            goal, goal_vel = _route_goal(cfg, body, routes, outline, x.map_pose, rel, vel,
-                                         fol.point)
+            goal, goal_vel, direct = _route_goal(cfg, body, routes, outline, x.map_pose, rel,
+                                                 vel, fol.point)
         ahead = (x.obstacles[:, 0] > 0) & (jnp.abs(x.obstacles[:, 1])
                                           < robot_radius + cfg.corridor_margin)
         blocked = follower.safety_stop(x.obstacles, x.obstacle_mask & ahead, fol.stop_distance)
         u = follower.control(fol, goal, goal_vel, state.u, dt, reverse=cfg.reverse)
+        case = jnp.int32(-1)
         if cfg.avoidance:
-            u = _avoid(cfg, body, fol, u, state.u, x, geometry.to_frame(x.map_pose, outline))
+            u, case = _avoid(cfg, body, fol, u, state.u, x,
+                             geometry.to_frame(x.map_pose, outline))
         v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
         w, side = _search(cfg, body, fol, state, x, unseen, lost_now, u[1])
         u = jnp.stack([v if cfg.reverse else jnp.maximum(v, 0.0), w])
-        return FollowingState(u, unseen, side.astype(dtype)), Command(u, blocked)
+        pan = None if cfg.pan is None else _camera(cfg, body, state, x, lost_now)
+        return (FollowingState(u, unseen, side.astype(dtype), pan),
+                Command(u, blocked, None if pan is None else pan.angle, direct, case))
 
     return Behaviour(init, step)
 
@@ -225,7 +249,7 @@ def _route_goal(cfg, body, routes, outline, map_pose, rel, vel, point):
                                 direct_clearance=cfg.route_clearance)
     wp = geometry.to_frame(map_pose, wp)
     reach = wp + geometry.safe_norm(point) * wp / jnp.maximum(geometry.safe_norm(wp), 1e-3)
-    return jnp.where(direct, rel, reach), jnp.where(direct, vel, 0.0)
+    return jnp.where(direct, rel, reach), jnp.where(direct, vel, 0.0), direct
 
 
 def _avoid(cfg, body, fol, u, u_prev, x, known):
@@ -239,9 +263,18 @@ def _avoid(cfg, body, fol, u, u_prev, x, known):
     seen = x.obstacles[::stride]
     seen_ok = x.obstacle_mask[::stride] & ~(geometry.safe_norm(seen - x.user)
                                             < cfg.user_clearance)
-    u, _ = avoidance.select(ap, u, u_prev, jnp.concatenate([seen, known]),
-                            jnp.concatenate([seen_ok, jnp.ones(known.shape[0], bool)]))
-    return u
+    u, info = avoidance.select(ap, u, u_prev, jnp.concatenate([seen, known]),
+                               jnp.concatenate([seen_ok, jnp.ones(known.shape[0], bool)]))
+    return u, info.case
+
+
+def _camera(cfg, body, state, x, lost_now):
+    """The pan unit turned toward the user's estimate, or toward the person to look at while
+    looking for a lost user."""
+    bearing = jnp.arctan2(x.user[1], x.user[0])
+    if x.look is not None:
+        bearing = jnp.where(x.look_ok & lost_now, jnp.arctan2(x.look[1], x.look[0]), bearing)
+    return pan_tilt.servo(cfg.pan, state.pan, bearing, body.dt)
 
 
 def _search(cfg, body, fol, state, x, unseen, lost_now, omega):

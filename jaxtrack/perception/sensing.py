@@ -119,6 +119,8 @@ class Sensed(NamedTuple):
       returns_xy: [B, 2] laser returns in the robot frame (0 where invalid); returns_mask: [B].
       truth: [4] the true user ``(p_x, p_y, v_x, v_y)`` in the odometry frame where a
         simulator knows it (the ``truth`` estimator's input), else None.
+      camera_pan: the RGB-D camera's pan angle relative to the robot's heading (rad) when it
+        sits on a pan unit, else None (it looks straight ahead).
     """
 
     laser_xy: Array
@@ -133,6 +135,7 @@ class Sensed(NamedTuple):
     returns_xy: Array
     returns_mask: Array
     truth: Array | None = None
+    camera_pan: Array | None = None
 
 
 def empty_map(dtype=jnp.float32) -> StaticMap:

@@ -175,12 +175,15 @@ class Scan(NamedTuple):
 
     Attributes:
       xy: [M, 2] detections (filter frame); mask: [M] bools.
-      fov: [3] ``(half_angle rad, min_range m, max_range m)`` around the robot's heading.
+      fov: [3] ``(half_angle rad, min_range m, max_range m)`` around the sensor's heading.
+      heading: the sensor's heading relative to the robot's (rad; a camera on a pan unit), or
+        None (it looks along the robot's heading).
     """
 
     xy: Array
     mask: Array
     fov: Array
+    heading: Array | None = None
 
 
 class PeoplePFState(NamedTuple):
@@ -238,8 +241,9 @@ def log_likelihood(params: PeoplePFParams, positions: Array, scans: tuple[Scan, 
         # Linear space: the sum is added to 1 - pd f >= 1 - pd > 0, so underflow is harmless.
         scale = jnp.exp(-params.log_clutter_density[s]) / (2 * jnp.pi * var)
         dens = scale * jnp.sum(jnp.where(scan.mask[None, :], jnp.exp(-0.5 * d2 / var), 0.0), 1)
+        pose = robot_pose if scan.heading is None else robot_pose.at[2].add(scan.heading)
         pd = jax.nn.sigmoid(params.logit_p_detect[s]) * field_of_view(
-            positions, robot_pose, scan.fov, params.config.fov_softness)
+            positions, pose, scan.fov, params.config.fov_softness)
         total = total + jnp.log1p(pd * (dens - 1.0))
     return total
 
@@ -321,7 +325,9 @@ def _step(key, state, scans, robot_pose, params):
     dtype = state.particles.particles.dtype
     robot_pose = jnp.asarray(robot_pose, dtype)
     scans = tuple(Scan(jnp.asarray(s.xy, dtype), jnp.asarray(s.mask, bool),
-                       jnp.asarray(s.fov, dtype)) for s in scans)
+                       jnp.asarray(s.fov, dtype),
+                       None if s.heading is None else jnp.asarray(s.heading, dtype))
+                  for s in scans)
     F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
     chol_q = _linalg.cholesky(Q + 1e-9 * jnp.eye(4, dtype=Q.dtype)).astype(dtype)
     F = F.astype(dtype)

@@ -347,7 +347,7 @@ def particle_filter(config: ParticleConfig = ParticleConfig()) -> Estimator:
     def update(key, state, z: Sensed, params):
         lm, km = _sensor_masks(config.sensors, z)
         scans = (people_pf.Scan(z.laser_xy, lm, jnp.asarray(config.laser_fov)),
-                 people_pf.Scan(z.rgbd_xy, km, jnp.asarray(config.rgbd_fov)))
+                 people_pf.Scan(z.rgbd_xy, km, jnp.asarray(config.rgbd_fov), z.camera_pan))
         state = people_pf.step(key, state, scans, z.odom_pose, params)
         cl = state.clusters
         heading = jnp.arctan2(state.target_mean[3], state.target_mean[2])

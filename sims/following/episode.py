@@ -163,6 +163,9 @@ class Frame(NamedTuple):
     laser_user: Array   # distance from the user to the nearest laser person (m; inf: none)
     rgbd_user: Array    # distance from the user to the nearest RGB-D detection (m; inf: none)
     user_switched: Array  # the estimate moved from one true person to another
+    pan: Array | None = None  # the RGB-D camera's pan angle (rad; None: a fixed camera)
+    direct: Array | None = None     # the robot steered straight at the user (not a route)
+    avoidance: Array | None = None  # the avoidance layer: 0 kept, 1 replaced, 2 blocked
 
 
 def _safe_sqrt(x):
@@ -247,7 +250,9 @@ def make_rollout(config: EpisodeConfig):
     def sense(keys, s: State, w: world.World, colours):
         """Simulated sensors, then the sensing step; the true user joins the measurement for
         the ``truth`` estimator (odometry frame)."""
-        obs = world.observe(keys, scfg, sc, laser, s.world.robot, w.robot, w.people, colours)
+        pan = None if s.behaviour.pan is None else s.behaviour.pan.angle
+        obs = world.observe(keys, scfg, sc, laser, s.world.robot, w.robot, w.people, colours,
+                            pan)
         odom = geometry.compose(s.odom_pose, obs.increment)
         sensing_state, sensed = sensing.sense(
             scfg.sensing, s.sensing, obs.ranges, laser.angles,
@@ -256,7 +261,7 @@ def make_rollout(config: EpisodeConfig):
         truth = jnp.concatenate([
             geometry.from_frame(odom, geometry.to_frame(w.robot, w.people.pos[0])),
             geometry.rotate(odom[2] - w.robot[2], w.people.vel[0])]).astype(dtype)
-        return obs, sensing_state, sensed._replace(truth=truth)
+        return obs, sensing_state, sensed._replace(truth=truth, camera_pan=pan)
 
     def record(s: State, w: world.World, obs, sensed, e, cmd, params):
         """The frame's `Frame` in the world frame."""
@@ -284,7 +289,8 @@ def make_rollout(config: EpisodeConfig):
         rec = Frame(pose, people.pos, people.mask, est_world, err,
                     geometry.safe_norm(est_world - user_xy) > LOST_DISTANCE, visible, hyp,
                     e.people_ids, e.people_mask & multi, near, cmd.stopped, cmd.u,
-                    _safe_sqrt(lu), _safe_sqrt(ru), switched)
+                    _safe_sqrt(lu), _safe_sqrt(ru), switched, sensed.camera_pan, cmd.direct,
+                    cmd.avoidance)
         return rec, last_id
 
     def rollout(key, params: EpisodeParams) -> Frame:

@@ -47,6 +47,9 @@ class AisleGraph(NamedTuple):
       pair: [N] int, a spot's neighbour 0.6 m along the shelf (a side step; itself elsewhere).
       next_hop: [N, N] int, the next node from ``i`` toward ``j`` (``i`` when ``i == j``).
       length: [N, N] path lengths (m).
+      tour: [S] the spots in shopping order: aisle by aisle from the bottom, along each aisle
+        in turn (a serpentine), both shelves at once.
+      rank: [N] a spot's place in the tour (-1 elsewhere).
     """
 
     nodes: np.ndarray
@@ -55,6 +58,8 @@ class AisleGraph(NamedTuple):
     pair: np.ndarray
     next_hop: np.ndarray
     length: np.ndarray
+    tour: np.ndarray
+    rank: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -192,8 +197,18 @@ def _aisles() -> AisleGraph:
     # pred[j, i] is the node before i on the path from j: the next hop from i toward j.
     nxt = pred.T.copy()
     nxt[nxt < 0] = np.broadcast_to(np.arange(N)[:, None], (N, N))[nxt < 0]
-    return AisleGraph(np.stack(nodes), np.array(spot), np.array(facing), np.array(pair),
-                      nxt.astype(np.int32), length)
+    xy = np.stack(nodes)
+    spots = np.flatnonzero(spot)
+    line = np.array([min(range(len(_AISLE_Y)), key=lambda k: abs(xy[i, 1] - _AISLE_Y[k]))
+                     for i in spots])
+    # Serpentine: left to right along the even aisles, right to left along the odd ones.
+    x = np.where(line % 2 == 0, xy[spots, 0], -xy[spots, 0])
+    tour = spots[np.lexsort((x, line))]
+    rank = np.full(N, -1)
+    rank[tour] = np.arange(tour.size)
+    return AisleGraph(xy, np.array(spot), np.array(facing), np.array(pair),
+                      nxt.astype(np.int32), length, tour.astype(np.int32),
+                      rank.astype(np.int32))
 
 
 def block_segments(blocks) -> np.ndarray:

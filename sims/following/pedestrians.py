@@ -51,7 +51,7 @@ from jaxtrack.angles import wrap
 
 Array = jax.Array
 
-__all__ = ["GaitParams", "SocialForces", "Walks", "UserBehaviour", "PedestrianConfig",
+__all__ = ["GaitParams", "SocialForces", "Walks", "Shopping", "UserBehaviour", "PedestrianConfig",
            "PedestrianState", "init", "step", "rollout", "robot_start", "leg_capsules",
            "torso_position", "cadence", "PARK_DEPTH"]
 
@@ -142,10 +142,43 @@ class Walks(NamedTuple):
     cross_prob: float = 0.5
 
 
+class Shopping(NamedTuple):
+    """How people walk a shop's aisle graph (`sims.following.layout.AisleGraph`): from shelf
+    spot to shelf spot along the shortest route, stopping at each.
+
+    The user follows the shop's tour (`AisleGraph.tour`, aisle by aisle), skipping 0 to
+    ``max_skip - 1`` spots at a time, and now and then (``turn_back_prob``) turns back to a spot
+    up to ``max_skip`` behind; distractors go to random spots anywhere.
+
+    Attributes:
+      speed_range: walking speeds are drawn uniformly in this range at every new spot (m/s).
+      stop_duration: the stop at a shelf, drawn uniformly in this range (s), facing it.
+      side_step_prob: after a stop, the probability that the next spot is the neighbouring one
+        along the same shelf (a side step).
+      turn_back_prob: the probability that the user's next spot is behind them on the tour.
+      max_skip: the user's next spot is 1 to ``max_skip`` places on along the tour.
+      stop_rate: rate (1/s) of a short stop anywhere while walking (someone standing in the
+        aisle); its duration is drawn from `Walks.stop_duration`.
+      arrive_tolerance: a spot is reached within this distance (m); pass_tolerance: a route
+        node on the way, within this distance (m).
+    """
+
+    speed_range: tuple = (0.6, 1.3)
+    stop_duration: tuple = (2.0, 8.0)
+    side_step_prob: float = 0.4
+    turn_back_prob: float = 0.1
+    max_skip: int = 4
+    stop_rate: float = 0.01
+    arrive_tolerance: float = 0.25
+    pass_tolerance: float = 0.5
+
+
 class UserBehaviour(NamedTuple):
     """How the user treats their robot.
 
     Attributes:
+      wander: the user wanders (random waypoints; in a shop, random nodes of the aisle graph
+        with `Walks` stops) instead of shopping (shelf spot to shelf spot, leading the robot).
       robot_start_distance: the robot starts this far behind the user (`robot_start`).
       wait: ``(near, far)`` distances (m) between the user and the robot: beyond ``near`` the
         user slows down linearly, and at ``far`` they stand and wait for their robot, as the
@@ -159,6 +192,7 @@ class UserBehaviour(NamedTuple):
     robot_start_distance: float = 1.2
     wait: tuple | None = (3.0, 4.0)
     return_distance: float | None = 4.0
+    wander: bool = False
 
 
 class PedestrianConfig(NamedTuple):
@@ -170,7 +204,12 @@ class PedestrianConfig(NamedTuple):
         (`sims.following.scene.pedestrian_config` fills them from the scene).
       distractors: number of active people besides the user (person 0).
       robot_radius: radius of the robot's disc for avoidance (m).
-      forces: `SocialForces`. walks: `Walks`. user: `UserBehaviour`. gait: `GaitParams`.
+      boxes: [B, 4] solid axis-aligned blocks (centre x, centre y, half size x, half size y):
+        shelves and counters people walk around.
+      aisles: the shop's `sims.following.layout.AisleGraph`, or None (a room: everyone walks to
+        random waypoints, `Walks`). With aisles everyone walks the graph (`Shopping`).
+      forces: `SocialForces`. walks: `Walks`. shopping: `Shopping`. user: `UserBehaviour`.
+      gait: `GaitParams`.
     """
 
     room: tuple = (10.0, 8.0)
@@ -181,6 +220,9 @@ class PedestrianConfig(NamedTuple):
     walks: Walks = Walks()
     user: UserBehaviour = UserBehaviour()
     gait: GaitParams = GaitParams()
+    boxes: tuple | Array = ()
+    aisles: object = None
+    shopping: Shopping = Shopping()
 
 
 class PedestrianState(NamedTuple):
@@ -194,6 +236,8 @@ class PedestrianState(NamedTuple):
       stop_timer: [P] remaining stop time (s, > 0 while stopped).
       goal_timer: [P] time left to reach the waypoint before it is replaced (s).
       crossing: [P] bool, the current waypoint crosses the user's path.
+      node: [P] int32, the aisle-graph node walked to (shop); target: [P] int32, the spot
+        walked to; face: [P] the heading a person stopped at a shelf turns to.
     """
 
     pos: Array
@@ -206,6 +250,9 @@ class PedestrianState(NamedTuple):
     stop_timer: Array
     goal_timer: Array
     crossing: Array
+    node: Array | None = None
+    target: Array | None = None
+    face: Array | None = None
 
 
 _CANDIDATES = 8  # waypoint candidates drawn per person and step (first free one is taken)
@@ -222,15 +269,47 @@ def _unit(v, eps=1e-9):
     return v / n, n[..., 0]
 
 
+def _boxes(cfg, dtype):
+    return jnp.asarray(cfg.boxes, dtype).reshape(-1, 4)
+
+
 def _free(points, cfg, clearance, dtype):
-    """[..., 2] -> bool: outside every footprint by ``clearance`` and inside the walls."""
+    """[..., 2] -> bool: outside every footprint and block by ``clearance`` and inside the
+    walls."""
     obs = _obstacles(cfg, dtype)
     hw, hh = 0.5 * cfg.room[0] - cfg.forces.wall_margin, 0.5 * cfg.room[1] - cfg.forces.wall_margin
     inside = (jnp.abs(points[..., 0]) <= hw) & (jnp.abs(points[..., 1]) <= hh)
-    if obs.shape[0] == 0:
-        return inside
-    d = jnp.linalg.norm(points[..., None, :] - obs[:, :2], axis=-1) - obs[:, 2]
-    return inside & jnp.all(d > clearance, -1)
+    if obs.shape[0]:
+        d = jnp.linalg.norm(points[..., None, :] - obs[:, :2], axis=-1) - obs[:, 2]
+        inside = inside & jnp.all(d > clearance, -1)
+    boxes = _boxes(cfg, dtype)
+    if boxes.shape[0]:
+        off = jnp.abs(points[..., None, :] - boxes[:, :2]) - boxes[:, 2:] - clearance
+        inside = inside & ~jnp.any(jnp.all(off < 0.0, -1), -1)
+    return inside
+
+
+def _nearest_on_boxes(pos, boxes):
+    """[P, B, 2] the point of every block nearest to every position [P, 2]."""
+    lo, hi = boxes[:, :2] - boxes[:, 2:], boxes[:, :2] + boxes[:, 2:]
+    return jnp.clip(pos[:, None, :], lo, hi)
+
+
+def _push_out_boxes(pos, boxes, reach):
+    """Move positions [P, 2] out of the blocks grown by ``reach``: along the normal of the
+    nearest face (through it when the position is inside the block)."""
+    off = pos[:, None, :] - boxes[:, :2]                                     # [P, B, 2]
+    depth = boxes[:, 2:] + reach - jnp.abs(off)                             # > 0 on both: inside
+    inside = jnp.all(depth > 0.0, -1)
+    q = _nearest_on_boxes(pos, boxes)
+    n, d = _unit(pos[:, None, :] - q)
+    corner = inside & (d > 0.0) & jnp.all(jnp.abs(off) > boxes[:, 2:], -1)
+    # Near a corner, push radially from the corner; elsewhere through the nearest face.
+    axis = jnp.argmin(depth, -1)
+    face = jnp.where(jnp.arange(2) == axis[..., None], jnp.sign(off) * depth, 0.0)
+    radial = n * jnp.maximum(reach - d, 0.0)[..., None]
+    move = jnp.where(corner[..., None], radial, jnp.where(inside[..., None], face, 0.0))
+    return pos + jnp.sum(move, 1)
 
 
 def _sample_goals(u, cfg, pos, user_pos, user_dir, dtype):
@@ -307,6 +386,8 @@ def init(key: Array, cfg: PedestrianConfig, num_people: int,
         if ret is not None and _checks.is_concrete(ret) and not float(ret) >= far_w:
             raise ValueError(f"user.return_distance ({ret}) must be at least user.wait's far "
                              f"distance ({far_w}): the user waits before walking back")
+    if cfg.aisles is not None:
+        return _init_shop(key, cfg, P, dtype)
     W, H = (float(x) for x in cfg.room)
     wall = cfg.forces.wall_margin
     nx, ny = int((W - 2 * wall) // _CELL), int((H - 2 * wall) // _CELL)
@@ -346,6 +427,133 @@ def init(key: Array, cfg: PedestrianConfig, num_people: int,
                             phase=zeros, mask=mask, goal=goal, speed=speed, stop_timer=zeros,
                             goal_timer=_goal_time(goal, pos, speed), crossing=crossing)
     return _park(state)
+
+
+def _graph(cfg, dtype):
+    g = cfg.aisles
+    return (jnp.asarray(g.nodes, dtype), jnp.asarray(g.next_hop, jnp.int32),
+            jnp.asarray(g.pair, jnp.int32), jnp.asarray(g.facing, dtype),
+            np.flatnonzero(np.asarray(g.spot)))
+
+
+def _init_shop(key, cfg, P, dtype):
+    """Shoppers on the aisle graph, at rest: the user at a route node with the robot's start
+    free behind them (facing the first hop toward their first spot), the distractors at other
+    route nodes at least 1.5 m from both, each with a random first spot."""
+    nodes, next_hop, _, _, spots = _graph(cfg, dtype)
+    route = np.flatnonzero(~np.asarray(cfg.aisles.spot))
+    N = nodes.shape[0]
+    if route.size < P + 2:
+        raise ValueError(f"the aisle graph has {route.size} route nodes for {P} people")
+    k_user, k_other, k_target, k_speed, k_head = jax.random.split(key, 5)
+    targets = jnp.asarray(spots)[jax.random.randint(k_target, (max(N, P),), 0, spots.size)]
+    # The user: any route node whose first hop points away from the robot's start.
+    cand = jnp.asarray(route)
+    first = nodes[next_hop[cand, targets[cand]]] - nodes[cand]
+    facing = _unit(first)[0]
+    behind = nodes[cand] - cfg.user.robot_start_distance * facing
+    ok = (_free(behind, cfg, cfg.robot_radius + 0.1, dtype)
+          & (jnp.linalg.norm(first, axis=-1) > 0.1))
+    iu = cand[jnp.argmax(jnp.where(ok, jax.random.uniform(k_user, (cand.size,), dtype), -1.0))]
+    user_pos, user_dir, robot = nodes[iu], facing[jnp.argmax(cand == iu)], behind[
+        jnp.argmax(cand == iu)]
+    away = ((jnp.linalg.norm(nodes[cand] - user_pos, axis=-1) > 1.5)
+            & (jnp.linalg.norm(nodes[cand] - robot, axis=-1) > 1.5))
+    score = jnp.where(away, jax.random.uniform(k_other, (cand.size,), dtype), -1.0)
+    others = cand[jax.lax.top_k(score, P - 1)[1]] if P > 1 else jnp.zeros((0,), jnp.int32)
+    node = jnp.concatenate([iu[None], others]).astype(jnp.int32)
+    pos = nodes[node]
+    target = targets[node].astype(jnp.int32)
+    heading = jnp.concatenate([jnp.arctan2(user_dir[1], user_dir[0])[None],
+                               jax.random.uniform(k_head, (P - 1,), dtype, -jnp.pi, jnp.pi)])
+    lo, hi = cfg.shopping.speed_range
+    speed = lo + (hi - lo) * jax.random.uniform(k_speed, (P,), dtype)
+    mask = jnp.arange(P) <= cfg.distractors
+    zeros = jnp.zeros((P,), dtype)
+    state = PedestrianState(pos=pos, vel=jnp.zeros((P, 2), dtype), heading=heading.astype(dtype),
+                            phase=zeros, mask=mask, goal=pos, speed=speed, stop_timer=zeros,
+                            goal_timer=jnp.full((P,), 5.0, dtype),
+                            crossing=jnp.zeros((P,), bool), node=node, target=target,
+                            face=heading.astype(dtype))
+    return _park(state)
+
+
+def _shop_plan(u, cfg, state, robot_xy, dt):
+    """Waypoints and stops of shoppers on the aisle graph (`Shopping`): at an intermediate
+    node, the next hop toward the target spot; at the target spot, a stop facing the shelf and
+    a new target (the neighbouring spot with ``side_step_prob``, else a random spot; for a
+    wandering user, any node). Returns ``(goal, node, target, face, speed, stop_timer,
+    goal_timer)``."""
+    dtype = state.pos.dtype
+    P = state.pos.shape[0]
+    sh, wk = cfg.shopping, cfg.walks
+    nodes, next_hop, pair, facing, spots = _graph(cfg, dtype)
+    pos, node, target = state.pos, state.node, state.target
+    u_stop, u_rand, u_len, u_speed, u_spot, u_side = (u[:, i] for i in range(6))
+    walking = state.stop_timer <= 0.0
+    d = jnp.linalg.norm(nodes[node] - pos, axis=-1)
+    at_target = node == target
+    # A route node under the robot counts as passed (the walker goes round the robot instead).
+    under_robot = (jnp.linalg.norm(nodes[node] - robot_xy, axis=-1)
+                   < cfg.robot_radius + cfg.forces.person_radius + 0.1) & ~at_target
+    reached = walking & state.mask & ((d < jnp.where(at_target, sh.arrive_tolerance,
+                                                     sh.pass_tolerance)) | under_robot)
+    arrived = reached & at_target
+    user = jnp.arange(P) == 0
+    wander = user & cfg.user.wander
+    N, S = nodes.shape[0], spots.size
+    any_node = jnp.minimum((u_spot * N).astype(jnp.int32), N - 1)
+    random_spot = jnp.asarray(spots)[jnp.minimum((u_spot * S).astype(jnp.int32), S - 1)]
+    # The user's next spot along the tour: 1..max_skip on, or back now and then.
+    tour, rank = jnp.asarray(cfg.aisles.tour), jnp.asarray(cfg.aisles.rank)
+    skip = 1 + jnp.minimum((u_spot * sh.max_skip).astype(jnp.int32), sh.max_skip - 1)
+    skip = jnp.where(u_stop < sh.turn_back_prob, -skip, skip)
+    on_tour = tour[jnp.mod(jnp.maximum(rank[target], 0) + skip, S)]
+    new_target = jnp.where(wander, any_node,
+                           jnp.where(u_side < sh.side_step_prob, pair[target],
+                                     jnp.where(user, on_tour, random_spot)))
+    target = jnp.where(arrived, new_target, target).astype(jnp.int32)
+    # A stop at the shelf (a wandering user stops as `Walks` says), or a short one anywhere.
+    s0, s1 = jnp.where(wander, wk.stop_duration[0], sh.stop_duration[0]), jnp.where(
+        wander, wk.stop_duration[1], sh.stop_duration[1])
+    shelf_stop = arrived & (~wander | (u_stop < wk.stop_prob))
+    aisle_stop = walking & ~arrived & (u_rand < jnp.where(wander, wk.stop_rate, sh.stop_rate)
+                                       * dt)
+    a0, a1 = wk.stop_duration
+    duration = jnp.where(shelf_stop, s0 + (s1 - s0) * u_len, a0 + (a1 - a0) * u_len)
+    stop_timer = jnp.where(shelf_stop | aisle_stop, duration, state.stop_timer - dt)
+    face = jnp.where(shelf_stop & ~wander, facing[node], state.face)
+    lo, hi = sh.speed_range
+    speed = jnp.where(arrived, lo + (hi - lo) * u_speed, state.speed)
+    node = jnp.where(reached, next_hop[node, target], node)
+    # A waypoint that takes too long is given up: re-route from the nearest node.
+    stuck = state.mask & (state.goal_timer <= 0.0)
+    nearest = jnp.argmin(jnp.linalg.norm(pos[:, None] - nodes[None], axis=-1), -1)
+    node = jnp.where(stuck, nearest, node).astype(jnp.int32)
+    goal = nodes[node]
+    fresh = reached | stuck
+    goal_timer = jnp.where(fresh, _goal_time(goal, pos, speed),
+                           jnp.where(stop_timer > 0.0, state.goal_timer, state.goal_timer - dt))
+    return goal, node, target, face, speed, stop_timer, goal_timer
+
+
+def _pass_robot(cfg, pos, to_goal, dist, robot_xy, dtype):
+    """Walking directions [P, 2] that pass beside the robot when it stands in the way (within
+    2 m, less than 60 deg off the way to the waypoint, and nearer than it): toward a point
+    beside the robot, on the walker's side of it if that is free, else on the other. Returns
+    ``(directions, passing [P])``."""
+    sf = cfg.forces
+    n_r, d_r = _unit(robot_xy - pos)
+    ahead = (jnp.sum(n_r * to_goal, -1) > 0.5) & (d_r < 2.0) & (d_r < dist + 0.5)
+    right = jnp.stack([to_goal[:, 1], -to_goal[:, 0]], -1)
+    # The side the walker is already on (right when straight behind), unless it is blocked.
+    side = jnp.where(jnp.sum((pos - robot_xy) * right, -1) >= 0.0, 1.0, -1.0)[:, None]
+    clear = cfg.robot_radius + sf.person_radius + 0.05
+    via = robot_xy + clear * side * right
+    via = jnp.where(_free(via, cfg, sf.person_radius, dtype)[:, None], via,
+                    robot_xy - clear * side * right)
+    passing = ahead | (d_r < clear + 0.1)
+    return jnp.where(ahead[:, None], _unit(via - pos)[0], to_goal), passing
 
 
 def _goal_time(goal, pos, speed):
@@ -420,28 +628,43 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
     pos, vel, mask = state.pos, state.vel, state.mask
 
     # --- waypoints and stops ---------------------------------------------------------------
-    arrived = jnp.linalg.norm(state.goal - pos, axis=-1) < cfg.walks.waypoint_tolerance
-    replan = (arrived | (state.goal_timer <= 0.0)) & mask
-    user_dir = jnp.where(jnp.linalg.norm(vel[0]) > g.stand_speed, _unit(vel[0])[0],
-                         jnp.stack([jnp.cos(state.heading[0]), jnp.sin(state.heading[0])]))
-    new_goal, new_cross = _sample_goals(u[:, 4:], cfg, pos, pos[0], user_dir, dtype)
-    goal = jnp.where(replan[:, None], new_goal, state.goal)
-    crossing = jnp.where(replan, new_cross, state.crossing)
-    lo, hi = cfg.walks.speed_range
-    speed = jnp.where(replan, lo + (hi - lo) * u_speed,
-                      state.speed)
-    walking = state.stop_timer <= 0.0
-    start_stop = walking & ((arrived & (u_stop < cfg.walks.stop_prob))
-                            | (u_rand < cfg.walks.stop_rate * dt))
-    d0, d1 = cfg.walks.stop_duration
-    duration = d0 + (d1 - d0) * u_len
-    stop_timer = jnp.where(start_stop, duration, state.stop_timer - dt)
-    goal_timer = jnp.where(replan, _goal_time(goal, pos, speed),
-                           jnp.where(stop_timer > 0.0, state.goal_timer, state.goal_timer - dt))
+    node, target, face = state.node, state.target, state.face
+    if cfg.aisles is not None:
+        goal, node, target, face, speed, stop_timer, goal_timer = _shop_plan(
+            u[:, 4:], cfg, state, robot_xy, dt)
+        crossing = state.crossing
+    else:
+        arrived = jnp.linalg.norm(state.goal - pos, axis=-1) < cfg.walks.waypoint_tolerance
+        replan = (arrived | (state.goal_timer <= 0.0)) & mask
+        user_dir = jnp.where(jnp.linalg.norm(vel[0]) > g.stand_speed, _unit(vel[0])[0],
+                             jnp.stack([jnp.cos(state.heading[0]), jnp.sin(state.heading[0])]))
+        new_goal, new_cross = _sample_goals(u[:, 4:], cfg, pos, pos[0], user_dir, dtype)
+        goal = jnp.where(replan[:, None], new_goal, state.goal)
+        crossing = jnp.where(replan, new_cross, state.crossing)
+        lo, hi = cfg.walks.speed_range
+        speed = jnp.where(replan, lo + (hi - lo) * u_speed,
+                          state.speed)
+        walking = state.stop_timer <= 0.0
+        start_stop = walking & ((arrived & (u_stop < cfg.walks.stop_prob))
+                                | (u_rand < cfg.walks.stop_rate * dt))
+        d0, d1 = cfg.walks.stop_duration
+        duration = d0 + (d1 - d0) * u_len
+        stop_timer = jnp.where(start_stop, duration, state.stop_timer - dt)
+        goal_timer = jnp.where(replan, _goal_time(goal, pos, speed),
+                               jnp.where(stop_timer > 0.0, state.goal_timer,
+                                         state.goal_timer - dt))
 
     # --- social forces ---------------------------------------------------------------------
-    to_goal, _ = _unit(goal - pos)
-    preferred = jnp.where((stop_timer > 0.0)[:, None], 0.0, speed[:, None] * to_goal)
+    to_goal, dist = _unit(goal - pos)
+    pace = speed
+    near_robot = jnp.ones((P, 1), dtype)
+    if cfg.aisles is not None:
+        to_goal, passing = _pass_robot(cfg, pos, to_goal, dist, robot_xy, dtype)
+        # Someone squeezing past the cart in an aisle keeps close to it.
+        near_robot = jnp.where(passing, 0.3, 1.0)[:, None].astype(dtype)
+        # Shoppers slow down over the last half metre to the spot they stop at.
+        pace = speed * jnp.where(node == target, jnp.minimum(1.0, dist / 0.5), 1.0)
+    preferred = jnp.where((stop_timer > 0.0)[:, None], 0.0, pace[:, None] * to_goal)
     if cfg.user.wait is not None:
         near_w, far_w = cfg.user.wait
         gap = jnp.linalg.norm(pos[0] - robot_xy)
@@ -457,12 +680,18 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
                         2.0 * sf.person_radius, sf.anisotropy, sf.keep_right, pair)
     force += _repulsion(pos, robot_xy[None, None], state.heading, sf.robot_strength,
                         sf.robot_range, sf.person_radius + cfg.robot_radius, sf.anisotropy,
-                        sf.keep_right, jnp.ones((P, 1), dtype))
+                        sf.keep_right, near_robot)
     obs = _obstacles(cfg, dtype)
     if obs.shape[0]:
         force += _repulsion(pos, obs[None, :, :2], state.heading, sf.social_strength,
                             sf.social_range, obs[:, 2] + sf.person_radius, sf.anisotropy,
                             sf.keep_right, jnp.ones((P, obs.shape[0]), dtype))
+    boxes = _boxes(cfg, dtype)
+    if boxes.shape[0]:
+        # Blocks push like walls, from their nearest points.
+        force += _repulsion(pos, _nearest_on_boxes(pos, boxes), state.heading, sf.wall_strength,
+                            sf.wall_range, sf.person_radius, 1.0, 0.0,
+                            jnp.ones((P, boxes.shape[0]), dtype))
     half = jnp.asarray([0.5 * cfg.room[0], 0.5 * cfg.room[1]], dtype)
     near = jnp.exp(jnp.minimum((sf.person_radius - (half - pos)) / sf.wall_range, 10.0))
     far = jnp.exp(jnp.minimum((sf.person_radius - (half + pos)) / sf.wall_range, 10.0))
@@ -481,6 +710,8 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
         if obs.shape[0]:
             new_pos = _push_out(new_pos, obs[:, :2], obs[:, 2] + sf.person_radius,
                                 jnp.ones((P, obs.shape[0]), bool))
+        if boxes.shape[0]:
+            new_pos = _push_out_boxes(new_pos, boxes, sf.person_radius)
         new_pos = _push_out(new_pos, robot_xy[None], sf.person_radius + cfg.robot_radius,
                             jnp.ones((P, 1), bool))
         new_pos = jnp.clip(new_pos, -half + sf.wall_margin, half - sf.wall_margin)
@@ -493,7 +724,12 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
     moving = v_norm > g.stand_speed
     turn = wrap(jnp.arctan2(new_vel[:, 1], new_vel[:, 0]) - state.heading)
     max_turn = sf.max_turn_rate * dt
-    heading = wrap(state.heading + jnp.where(moving, jnp.clip(turn, -max_turn, max_turn), 0.0))
+    turning = moving
+    if cfg.aisles is not None:
+        # Stopped at a shelf, a shopper turns to face it.
+        turn = jnp.where(moving, turn, wrap(face - state.heading))
+        turning = moving | (stop_timer > 0.0)
+    heading = wrap(state.heading + jnp.where(turning, jnp.clip(turn, -max_turn, max_turn), 0.0))
     s = jnp.minimum(v_norm, sf.max_speed)
     phase = jnp.mod(state.phase + jnp.where(moving, jnp.pi * cadence(s, g) * dt, 0.0),
                     2.0 * jnp.pi)
@@ -501,7 +737,9 @@ def step(key: Array, cfg: PedestrianConfig, state: PedestrianState, robot_pose: 
                           heading=heading.astype(dtype), phase=phase.astype(dtype), mask=mask,
                           goal=goal.astype(dtype), speed=speed.astype(dtype),
                           stop_timer=jnp.maximum(stop_timer, 0.0).astype(dtype),
-                          goal_timer=goal_timer.astype(dtype), crossing=crossing & mask)
+                          goal_timer=goal_timer.astype(dtype), crossing=crossing & mask,
+                          node=node, target=target,
+                          face=None if face is None else face.astype(dtype))
     return _park(new)
 
 

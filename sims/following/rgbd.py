@@ -152,7 +152,8 @@ def visible(cfg: RGBDConfig, robot_pose: Array, people_xy: Array, people_mask: A
 
 
 def detect(key: Array, cfg: RGBDConfig, robot_pose: Array, people_xy: Array,
-           people_mask: Array, people_colour: Array) -> RGBDDetections:
+           people_mask: Array, people_colour: Array, walls: Array | None = None
+           ) -> RGBDDetections:
     """Simulate one frame of the RGB-D person detector (module docstring, steps 1-5).
 
     Args:
@@ -163,9 +164,12 @@ def detect(key: Array, cfg: RGBDConfig, robot_pose: Array, people_xy: Array,
         hold anything, NaN included).
       people_mask: [P] bool, which rows are real people.
       people_colour: [P, 3] each person's colour vector in [0, 1].
+      walls: optional [S, 2, 2] wall segments (world frame) that hide the people behind them
+        (shelves): a person whose centre is out of sight of the camera is not detected.
 
     Returns:
-      `RGBDDetections` with M = P + cfg.max_false rows, in random order.
+      `RGBDDetections` with M = P + cfg.max_false rows, in random order (positions in the
+      frame of ``robot_pose``: for a camera on a pan unit, pass the camera's pose).
 
     Example:
       >>> det = detect(jax.random.key(0), RGBDConfig(), jnp.zeros(3),
@@ -182,7 +186,7 @@ def detect(key: Array, cfg: RGBDConfig, robot_pose: Array, people_xy: Array,
                        colour, 0.0)
     k_miss, k_pos, k_col, k_n, k_fa, k_fr, k_fc, k_perm = jax.random.split(key, 8)
 
-    seen, rel = _visible(cfg, robot_pose, people_xy, people_mask)
+    seen, rel = _visible(cfg, robot_pose, people_xy, people_mask, walls)
     hit = seen & (jax.random.uniform(k_miss, (p,), dtype) >= cfg.miss_prob)
     xy = rel + cfg.position_std * jax.random.normal(k_pos, (p, 2), dtype)
     col = jnp.clip(colour + cfg.colour_std * jax.random.normal(k_col, (p, 3), dtype), 0.0, 1.0)
@@ -220,7 +224,7 @@ def _truncated_poisson(key, rate, cap):
     return jnp.sum(u > cdf).astype(jnp.int32)
 
 
-def _visible(cfg, robot_pose, people_xy, people_mask):
+def _visible(cfg, robot_pose, people_xy, people_mask, walls=None):
     """(visible [P], positions in the robot frame [P, 2])."""
     dtype = people_xy.dtype
     ok = people_mask & jnp.all(jnp.isfinite(people_xy), -1)
@@ -239,7 +243,28 @@ def _visible(cfg, robot_pose, people_xy, people_mask):
     nearer = ok[None, :] & (dist[None, :] < dist[:, None])                     # [i, j]
     covered = jnp.any(inside & nearer[:, None, :], -1)                          # [P, K]
     occluded = jnp.mean(covered.astype(dtype), -1) > cfg.occlusion_threshold
+    if walls is not None and walls.shape[0]:
+        occluded = occluded | _behind_walls(robot_pose[:2], xy, jnp.asarray(walls, dtype))
     return in_view & ~occluded, jnp.where(ok[:, None], rel, 0.0)
+
+
+def _behind_walls(eye, xy, walls):
+    """[P] the segment from ``eye`` [2] to each person [P, 2] crosses a wall segment [S, 2, 2]
+    (the line of sight to the person's centre is blocked: shelves hide whom they stand
+    behind)."""
+    a, b = walls[None, :, 0], walls[None, :, 1]                              # [1, S, 2]
+    d = xy[:, None, :] - eye                                                  # [P, 1, 2]
+    e = b - a
+
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    den = cross(d, e)
+    w = a - eye
+    ok = jnp.abs(den) > 1e-12
+    t = cross(w, e) / jnp.where(ok, den, 1.0)       # along the line of sight
+    s = cross(w, d) / jnp.where(ok, den, 1.0)       # along the wall
+    return jnp.any(ok & (t > 0.0) & (t < 1.0) & (s >= 0.0) & (s <= 1.0), -1)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -312,13 +312,16 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
 
 
 def pedestrian_config(scene: Scene, **overrides) -> PedestrianConfig:
-    """A `PedestrianConfig` for the scene's room, furniture footprints, robot and gait.
+    """A `PedestrianConfig` for the scene's room, furniture footprints, blocks and aisles, robot
+    and gait.
 
     Example:
       >>> cfg = pedestrian_config(scene, distractors=4)
     """
     kw = dict(room=scene.room, obstacles=np.asarray(scene.footprints),
               robot_radius=scene.robot_radius, gait=scene.gait)
+    if scene.layout is not None and scene.layout.blocks:
+        kw.update(boxes=scene.layout.boxes(), aisles=scene.layout.aisles)
     kw.update(overrides)
     return PedestrianConfig(**kw)
 

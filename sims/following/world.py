@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxtrack import geometry
+from jaxtrack.control import behaviour
 from jaxtrack.perception import legs, sensing
 from sims.following import lidar, pedestrians
 from sims.following import rgbd as rgbd_mod
@@ -81,12 +83,14 @@ class World(NamedTuple):
 
 
 class Laser(NamedTuple):
-    """What the laser can hit besides people: walls (`lidar.Walls`), furniture legs
-    (`lidar.Circles`), and the beam angles [B]."""
+    """What the laser can hit besides people: walls (`lidar.Walls`: the room's, then the
+    blocks' edges), furniture legs (`lidar.Circles`), and the beam angles [B]; ``blocks``:
+    [S, 2, 2] the blocks' edges alone (they hide people from the camera too), or None."""
 
     walls: lidar.Walls
     furniture: lidar.Circles
     angles: Array
+    blocks: Array | None = None
 
 
 class Observation(NamedTuple):
@@ -110,19 +114,24 @@ class Observation(NamedTuple):
 def laser_world(sc: scene_mod.Scene, laser: lidar.LaserConfig, dtype) -> Laser:
     """The laser's static world in the scene ``sc``."""
     fc, fr = sc.furniture_circles()
-    walls = lidar.Walls(jnp.asarray(sc.wall_segments(), dtype), jnp.ones(4, bool))
+    segments = sc.wall_segments()
+    walls = lidar.Walls(jnp.asarray(segments, dtype), jnp.ones(len(segments), bool))
     furn = lidar.Circles(jnp.asarray(fc, dtype).reshape(-1, 2), jnp.asarray(fr, dtype),
                          jnp.ones(len(fr), bool))
-    return Laser(walls, furn, lidar.beam_angles(laser, dtype))
+    blocks = jnp.asarray(segments[4:], dtype) if len(segments) > 4 else None
+    return Laser(walls, furn, lidar.beam_angles(laser, dtype), blocks)
 
 
 def observe(keys, cfg: SensorsConfig, sc: scene_mod.Scene, laser: Laser, prev_pose: Array,
-            pose: Array, people: pedestrians.PedestrianState, colours: Array) -> Observation:
+            pose: Array, people: pedestrians.PedestrianState, colours: Array,
+            pan: Array | None = None) -> Observation:
     """The sensors at the robot's true pose ``pose`` [3] after moving from ``prev_pose``.
 
     Args:
       keys: three PRNG keys (odometry, laser, RGB-D).
       colours: [P, 3] the people's colour features.
+      pan: the RGB-D camera's pan angle relative to the robot (rad), or None (fixed): its field
+        of view turns with it; the detections are returned in the robot frame.
     """
     k_odom, k_laser, k_rgbd = keys
     dtype = pose.dtype
@@ -135,7 +144,11 @@ def observe(keys, cfg: SensorsConfig, sc: scene_mod.Scene, laser: Laser, prev_po
                             jnp.concatenate([sec.mask, laser.furniture.mask]))
     ranges = lidar.scan(k_laser, lidar.laser_pose(pose, cfg.laser), circles, laser.walls,
                         cfg.laser)
-    det = rgbd_mod.detect(k_rgbd, cfg.rgbd, pose, people.pos, people.mask, colours)
+    camera = pose if pan is None else pose.at[2].add(pan)
+    det = rgbd_mod.detect(k_rgbd, cfg.rgbd, camera, people.pos, people.mask, colours,
+                          laser.blocks)
+    if pan is not None:
+        det = det._replace(xy=jnp.where(det.mask[:, None], geometry.rotate(pan, det.xy), 0.0))
     return Observation(ranges, det, increment, sec)
 
 
@@ -178,8 +191,8 @@ def static_map(sc: scene_mod.Scene, laser: Laser, enabled: bool = True) -> sensi
 
 
 def known_map(sc: scene_mod.Scene):
-    """The behaviour's `jaxtrack.control.behaviour.KnownMap`: furniture outlines and walls."""
-    from jaxtrack.control import behaviour
-
+    """The behaviour's `jaxtrack.control.behaviour.KnownMap`: furniture and block outlines,
+    and the walls."""
     W, H = sc.room
-    return behaviour.KnownMap(outline_points(sc.furniture), ((-W / 2, W / 2), (-H / 2, H / 2)))
+    return behaviour.KnownMap(outline_points(tuple(sc.furniture) + tuple(sc.blocks)),
+                              ((-W / 2, W / 2), (-H / 2, H / 2)))

@@ -32,7 +32,10 @@ def test_rollout_shapes_and_physics(run):
     cfg, params, f = run
     T = cfg.num_frames
     assert f.robot.shape == (2, T, 3) and f.people.shape == (2, T, 4, 2)
+    assert f.pan is None  # a fixed camera by default
     for name, leaf in f._asdict().items():
+        if leaf is None:
+            continue
         leaf = np.asarray(leaf, float)
         if name in ("laser_user", "rgbd_user"):  # inf: no detection in that frame
             assert not np.any(np.isnan(leaf)) and np.isfinite(leaf).mean() > 0.5
