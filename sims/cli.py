@@ -75,6 +75,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="use the RGB-D colour feature: the multi-target estimators "
                              "re-identify the user by it, and GNN adds seed 001's colour "
                              "classifier term to its cost")
+    follow.add_argument("--layout", choices=("shop", "room"), default="shop",
+                        help="shop: shelves and aisles, a shopper who leads (default); room: a "
+                             "furnished room with wandering people")
+    follow.add_argument("--user", choices=("shopper", "wander"), default="shopper",
+                        help="in the shop, the user shops (default) or wanders (a stress test)")
+    follow.add_argument("--animate", action="store_true",
+                        help="with --out, also write an animation of the first episode")
     follow.add_argument("--duration", type=float, default=60.0, help="seconds per episode")
     follow.add_argument("--particles", type=int, default=256)
     follow.add_argument("--batch-size", type=int, default=None)
@@ -154,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
 
         run_person_following(args.episodes, args.estimator, args.follower, args.people,
                              args.out, args.seed, args.duration, args.sensors, args.particles,
-                             args.batch_size, appearance=args.appearance)
+                             args.batch_size, appearance=args.appearance, layout=args.layout,
+                             wander=args.user == "wander", animate=args.animate)
         return 0
     if args.episodes < 1 or args.particles < 1 or args.frames < 1:
         parser.error("--episodes, --particles and --frames must be positive")

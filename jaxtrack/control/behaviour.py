@@ -72,7 +72,9 @@ class FollowingConfig:
         how many laser returns it checks; avoidance_horizon: its rollout (s); user_clearance:
         returns this close to the user's estimate are not obstacles to it (m).
       reverse: allow driving backwards (the laser sees 240 deg to the front, nothing behind: by
-        default the robot never reverses, and turns instead).
+        default the robot never reverses, and turns instead); reverse_speed: the backward speed
+        limit (m/s) when it may (the avoidance layer checks backward arcs against the known
+        map's outlines; people behind are not seen).
       route: steer along routes of the known map when the straight line is blocked (blocked
         straight lines made most of the following error; measurements: docs/design_notes.md,
         "Person following: routes around the furniture");
@@ -93,6 +95,7 @@ class FollowingConfig:
     avoidance_horizon: float = 1.0
     user_clearance: float = 0.45
     reverse: bool = False
+    reverse_speed: float = 0.5
     route: bool = True
     route_cell: float = 0.25
     route_clearance: float = 0.3
@@ -227,7 +230,8 @@ def following(config: FollowingConfig, *, robot_radius: float, dt: float,
                              geometry.to_frame(x.map_pose, outline))
         v = jnp.where(blocked | lost_now, jnp.minimum(u[0], 0.0), u[0])
         w, side = _search(cfg, body, fol, state, x, unseen, lost_now, u[1])
-        u = jnp.stack([v if cfg.reverse else jnp.maximum(v, 0.0), w])
+        u = jnp.stack([jnp.maximum(v, -cfg.reverse_speed) if cfg.reverse
+                       else jnp.maximum(v, 0.0), w])
         pan = None if cfg.pan is None else _camera(cfg, body, state, x, lost_now)
         return (FollowingState(u, unseen, side.astype(dtype), pan),
                 Command(u, blocked, None if pan is None else pan.angle, direct, case))

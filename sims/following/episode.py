@@ -38,16 +38,17 @@ import jax.numpy as jnp
 from jaxtrack import geometry
 from jaxtrack import metrics as jmetrics
 from jaxtrack.control import behaviour as behaviour_mod
-from jaxtrack.control import follower
+from jaxtrack.control import follower, pan_tilt
 from jaxtrack.perception import sensing
 from jaxtrack.tracking import user
-from sims.following import lidar, world
+from sims.following import lidar, pedestrians, world
 from sims.following import scene as scene_mod
 
 Array = jax.Array
 
 __all__ = ["EpisodeConfig", "EpisodeParams", "State", "Frame", "make_params", "make_episode",
-           "make_rollout", "summarize", "LOST_DISTANCE", "INTIMATE", "MOT_THRESHOLD"]
+           "make_rollout", "summarize", "scenario", "SHOP_BEHAVIOUR", "LOST_DISTANCE",
+           "INTIMATE", "MOT_THRESHOLD"]
 
 LOST_DISTANCE = 0.5
 INTIMATE = 0.45
@@ -65,6 +66,8 @@ class EpisodeConfig:
       sensors: `sims.following.world.SensorsConfig` (simulated sensors and the sensing step).
       behaviour: `jaxtrack.control.behaviour.FollowingConfig` (the robot's radius comes from the
         scene, its period from ``control_dt``).
+      user: `pedestrians.UserBehaviour` (the shop's user shops by default; ``wander=True``
+        gives random walks, the stress test).
       distractors: people besides the user (``1 + distractors <= scene.num_people``).
       duration: simulated seconds; control_dt: control / sensing period (s).
       dtype: float dtype of the estimators and metrics.
@@ -74,6 +77,7 @@ class EpisodeConfig:
     estimator: object = user.ParticleConfig()
     sensors: world.SensorsConfig = world.SensorsConfig()
     behaviour: behaviour_mod.FollowingConfig = behaviour_mod.FollowingConfig()
+    user: pedestrians.UserBehaviour = pedestrians.UserBehaviour()
     distractors: int = 4
     duration: float = 60.0
     control_dt: float = 0.1
@@ -98,6 +102,37 @@ class EpisodeConfig:
         user.build(self.estimator)  # a clear error for what is not an estimator configuration
         if isinstance(self.estimator, str):
             object.__setattr__(self, "estimator", user.CONFIGS[self.estimator])
+
+
+SHOP_BEHAVIOUR = behaviour_mod.FollowingConfig(safety_margin=0.1, route_clearance=0.4,
+                                               reverse=True, pan=pan_tilt.PanTiltConfig())
+"""The following behaviour in the shop: the RGB-D camera on a pan unit (seed 004, section V),
+a 0.1 m safety margin in 1.9 m aisles, and backing off (at most 0.5 m/s) when the user turns
+back toward the cart (docs/design_notes.md, "Person following: the shop's floor")."""
+
+
+def scenario(layout: str = "shop", estimator="pf", *, wander: bool = False,
+             distractors: int = 4, duration: float = 60.0, num_people: int = 8,
+             **overrides) -> EpisodeConfig:
+    """The person-following scenario of a floor plan: ``"shop"`` (a shopper who leads, among
+    other shoppers, followed with `SHOP_BEHAVIOUR`) or ``"room"`` (today's furnished room and
+    wandering people, with the default behaviour and a fixed camera).
+
+    Args:
+      layout: "shop" or "room" (`sims.following.layout.LAYOUTS`).
+      estimator: a user-estimator configuration or name (`jaxtrack.tracking.user`).
+      wander: in the shop, the user walks randomly (the stress test) instead of shopping.
+      distractors, duration: `EpisodeConfig`'s; num_people: the scene's capacity.
+      overrides: other `EpisodeConfig` fields.
+
+    Example:
+      >>> config = scenario("shop", "jpda", distractors=4)
+    """
+    sc = scene_mod.build(num_people=max(num_people, distractors + 1), layout=layout)
+    kw = dict(behaviour=SHOP_BEHAVIOUR) if layout == "shop" else {}
+    kw.update(user=pedestrians.UserBehaviour(wander=wander))
+    kw.update(overrides)
+    return EpisodeConfig(sc, estimator, distractors=distractors, duration=duration, **kw)
 
 
 class EpisodeParams(NamedTuple):
@@ -210,7 +245,7 @@ def make_rollout(config: EpisodeConfig):
     P = sc.num_people
     dtype = config.dtype
     dt = config.control_dt
-    pcfg = scene_mod.pedestrian_config(sc, distractors=config.distractors)
+    pcfg = scene_mod.pedestrian_config(sc, distractors=config.distractors, user=config.user)
     scfg = config.sensors
     laser = world.laser_world(sc, scfg.laser, dtype)
     static = world.static_map(sc, laser, scfg.map_filter)

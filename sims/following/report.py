@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_person_following", "metrics_table", "estimator_config"]
+__all__ = ["run_person_following", "metrics_table", "estimator_config", "write_plots",
+           "write_animation", "draw_floor"]
 
 _ROWS = (("following_rms", "following RMS error [m]", "{:.3f}"),
          ("lost_fraction", "user lost [% of time]", "{:.2%}"),
@@ -66,7 +67,8 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
                          people: int = 4, out: Path | None = None, seed: int = 0,
                          duration: float = 60.0, sensors: str = "both", particles: int = 256,
                          batch_size: int | None = None, stream=sys.stdout,
-                         appearance: bool = False) -> dict:
+                         appearance: bool = False, layout: str = "shop",
+                         wander: bool = False, animate: bool = False) -> dict:
     """Run ``episodes`` closed-loop episodes, print the metrics table, write plots to ``out``.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -75,11 +77,9 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
 
     from jaxtrack import montecarlo
     from sims.following import episode as ep
-    from sims.following import scene
 
-    sc = scene.build(num_people=max(8, people + 1))
-    cfg = ep.EpisodeConfig(sc, estimator_config(estimator, sensors, particles, appearance),
-                           distractors=people, duration=duration)
+    cfg = ep.scenario(layout, estimator_config(estimator, sensors, particles, appearance),
+                      wander=wander, distractors=people, duration=duration)
     params = ep.make_params(cfg, point=follower)
     episode_fn = ep.make_episode(cfg)
     key = jax.random.PRNGKey(seed)
@@ -95,7 +95,8 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     run_s = time.perf_counter() - t1
     compile_s = max(first_s - run_s * bs / episodes, 0.0)
     m = {k: np.asarray(v) for k, v in res.metrics.items()}
-    title = (f"person following: {episodes} episodes x {duration:.0f} s, estimator {estimator}"
+    title = (f"person following ({layout}{', wandering user' if wander else ''}): {episodes} "
+             f"episodes x {duration:.0f} s, estimator {estimator}"
              f" ({sensors}{', appearance' if appearance else ''}), follower point {follower}, "
              f"{people} distractors")
     table = metrics_table(m, title)
@@ -103,13 +104,35 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     print(f"simulated in {run_s:.1f} s after {compile_s:.1f} s of compilation "
           f"({episodes * duration / run_s:.0f} simulated s per wall s)", file=stream)
     if out is not None:
-        write_plots(Path(out), cfg, params, key)
+        write_plots(Path(out), cfg, params, key, animate=animate)
         np.savez(Path(out) / "metrics.npz", **m)
     return {"table": table, "metrics": m, "compile_seconds": compile_s, "run_seconds": run_s}
 
 
-def write_plots(out: Path, cfg, params, key, num: int = 1) -> None:
-    """Top view of the first episode, following error over time, MOT timeline."""
+def draw_floor(ax, sc) -> None:
+    """The floor plan of the scene ``sc`` on ``ax``: walls, blocks (shelves, end caps,
+    counter) and furniture legs."""
+    import matplotlib.pyplot as plt
+
+    W, H = sc.room
+    ax.add_patch(plt.Rectangle((-W / 2, -H / 2), W, H, fill=False, color="k"))
+    colour = {"shelf": "0.75", "end_cap": "0.6", "counter": "0.45"}
+    for b in sc.blocks:
+        (cx, cy), (sx, sy) = b["centre"], b["size"]
+        ax.add_patch(plt.Rectangle((cx - sx / 2, cy - sy / 2), sx, sy,
+                                   color=colour.get(b["kind"], "0.6"), lw=0))
+    fc, _ = sc.furniture_circles()
+    if len(fc):
+        ax.plot(fc[:, 0], fc[:, 1], "s", color="0.4", ms=2.5, label="furniture legs")
+    ax.set_aspect("equal")
+    ax.set_xlim(-W / 2 - 0.2, W / 2 + 0.2)
+    ax.set_ylim(-H / 2 - 0.2, H / 2 + 0.2)
+
+
+def write_plots(out: Path, cfg, params, key, num: int = 1, animate: bool = False) -> None:
+    """Top view of the first episode (with the camera's pan direction every second), following
+    error over time with the lost intervals shaded, MOT timeline; with ``animate``, an
+    animated top view (``episode.gif``)."""
     import jax
     import matplotlib.pyplot as plt
 
@@ -119,39 +142,97 @@ def write_plots(out: Path, cfg, params, key, num: int = 1) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     frames = jax.jit(ep.make_rollout(cfg))(jax.random.split(key, 1)[0], params)
-    f = jax.tree_util.tree_map(np.asarray, frames)
+    f = jax.tree_util.tree_map(lambda x: None if x is None else np.asarray(x), frames)
     t = np.arange(f.robot.shape[0]) * cfg.control_dt
-    fig, ax = plt.subplots(figsize=(7, 6))
-    W, H = cfg.scene.room
-    ax.add_patch(plt.Rectangle((-W / 2, -H / 2), W, H, fill=False, color="k"))
-    fc, _ = cfg.scene.furniture_circles()
-    if len(fc):
-        ax.plot(fc[:, 0], fc[:, 1], "s", color="0.5", ms=3, label="furniture legs")
+    name = user.build(cfg.estimator).name
+    fig, ax = plt.subplots(figsize=(8, 6.5))
+    draw_floor(ax, cfg.scene)
     for p in range(f.people.shape[1]):
         if f.people_mask[:, p].any():
             ax.plot(f.people[:, p, 0], f.people[:, p, 1], lw=1 if p else 2,
                     label="user" if p == 0 else None, color="C1" if p == 0 else "0.7")
     ax.plot(f.robot[:, 0], f.robot[:, 1], "C0", lw=2, label="robot")
     ax.plot(f.user_estimate[:, 0], f.user_estimate[:, 1], "C2:", lw=1, label="user estimate")
-    ax.set_aspect("equal")
-    ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"person following ({user.build(cfg.estimator).name}): top view")
+    if f.pan is not None:
+        every = max(1, int(round(1.0 / cfg.control_dt)))
+        for k in range(0, f.robot.shape[0], every):
+            x, y, th = f.robot[k]
+            a = th + f.pan[k]
+            ax.plot([x, x + 0.6 * np.cos(a)], [y, y + 0.6 * np.sin(a)], color="C4", lw=0.8,
+                    label="camera pan (every second)" if k == 0 else None)
+    ax.legend(loc="upper right", fontsize=7)
+    ax.set_title(f"person following ({name}): top view")
     fig.savefig(out / "top_view.png", dpi=110)
     fig, ax = plt.subplots(figsize=(8, 3))
     ax.plot(t, f.follow_error, label="|follower point - user|")
-    ax.fill_between(t, 0, f.follow_error.max(), where=f.lost, color="C3", alpha=0.2,
-                    label="user lost")
+    ax.fill_between(t, 0, max(float(f.follow_error.max()), 1e-3), where=f.lost, color="C3",
+                    alpha=0.2, label="user lost")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("[m]")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "following_error.png", dpi=110)
+    if animate:
+        write_animation(out / "episode.gif", cfg, f, np.asarray(params.follower.point),
+                        title=f"person following ({name})")
     if cfg.multi_target:
         matched = _matches(f)
         fig = plotting.mot_timeline(matched, f.visible, dt=cfg.control_dt,
                                     title="which track followed which person")
         fig.savefig(out / "mot_timeline.png", dpi=110)
     plt.close("all")
+
+
+def write_animation(path, cfg, f, point=(1.5, 0.0), title: str = "", every: int = 2,
+                    fps: int = 10) -> None:
+    """An animated top view of one rollout's `Frame` record ``f`` (numpy leaves): the people,
+    the robot's disc and heading, its follower point ``point`` (robot frame), the user
+    estimate, the tracker's people and the camera's pan, every ``every``-th frame (GIF,
+    `matplotlib.animation.PillowWriter`).
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib import animation
+
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    draw_floor(ax, cfg.scene)
+    ax.set_title(title)
+    people = ax.scatter([], [], s=30, c="0.6")
+    user_dot, = ax.plot([], [], "o", color="C1", ms=8, label="user")
+    robot = plt.Circle((0, 0), cfg.scene.robot_radius, color="C0", alpha=0.6, label="robot")
+    ax.add_patch(robot)
+    heading, = ax.plot([], [], "C0", lw=2)
+    target, = ax.plot([], [], "x", color="C0", ms=8, label="follower point")
+    estimate, = ax.plot([], [], "+", color="C2", ms=12, mew=2, label="user estimate")
+    tracks = ax.scatter([], [], s=60, facecolors="none", edgecolors="C2", lw=0.8)
+    pan, = ax.plot([], [], "C4", lw=1)
+    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, fontsize=8, va="top")
+    ax.legend(loc="upper right", fontsize=7)
+    px, py = (float(v) for v in point)
+
+    def draw(k):
+        x, y, th = f.robot[k]
+        on = f.people_mask[k]
+        people.set_offsets(f.people[k][on])
+        user_dot.set_data([f.people[k, 0, 0]], [f.people[k, 0, 1]])
+        robot.center = (x, y)
+        heading.set_data([x, x + 0.5 * np.cos(th)], [y, y + 0.5 * np.sin(th)])
+        c, s = np.cos(th), np.sin(th)
+        target.set_data([x + c * px - s * py], [y + s * px + c * py])
+        err = f.follow_error[k]
+        clock.set_text(f"t = {k * cfg.control_dt:5.1f} s   following error {err:.2f} m"
+                       f"{'   user lost' if f.lost[k] else ''}")
+        estimate.set_data([f.user_estimate[k, 0]], [f.user_estimate[k, 1]])
+        hyp = f.hyp_pos[k][f.hyp_mask[k]]
+        tracks.set_offsets(hyp if len(hyp) else np.zeros((0, 2)))
+        if f.pan is not None:
+            a = th + f.pan[k]
+            pan.set_data([x, x + 1.0 * np.cos(a)], [y, y + 1.0 * np.sin(a)])
+        return people, user_dot, robot, heading, target, estimate, tracks, pan, clock
+
+    anim = animation.FuncAnimation(fig, draw, frames=range(0, f.robot.shape[0], every),
+                                   blit=False)
+    anim.save(path, writer=animation.PillowWriter(fps=fps))
+    plt.close(fig)
 
 
 def _matches(f, threshold: float = 0.5) -> np.ndarray:
