@@ -31,9 +31,16 @@ around the robot (eq. 2). One `step`:
    scan (one within ``support_radius``) is raised to at least ``cluster_floor`` of the mass
    before the next resampling; unsupported clusters (a false positive's births) keep their mass
    and die out;
-6. select the target (the user): the cluster nearest (Mahalanobis) to the target's prediction,
-   within a gate; the target has its own constant-velocity Kalman filter fed with the selected
-   cluster's mean and covariance (beyond the seed, whose selection procedure is "not described").
+6. select the target (the user; the seed's selection procedure is "not described"): by
+   motion continuity and, when the scans carry colour features and the state the user's colour,
+   by colour (`select_target`): among the clusters within ``gate`` of the target's prediction,
+   the one that minimises :math:`\tfrac12 d^2_M - \Lambda` (:math:`d_M` the Mahalanobis
+   distance to the prediction, :math:`\Lambda` the colour log-likelihood ratio "user vs anyone
+   else" of the RGB-D detection on the cluster, `jaxtrack.tracking.reid.evidence`), leaving out
+   clusters whose colour says someone else; a target not found for ``t`` seconds may be taken
+   up again, on clear colour evidence, up to ``gate + reacquire_speed t`` away (at most
+   ``max_gate``). The target has its own constant-velocity Kalman filter fed with the selected
+   cluster's mean and covariance.
 
 Every shape is fixed (detections padded with masks), so a step jits once and vmaps over episodes.
 """
@@ -50,6 +57,7 @@ from jaxtrack import _checks
 from jaxtrack.filters import _linalg, particle
 from jaxtrack.models import motion
 from jaxtrack.tracking import clustering
+from jaxtrack.tracking import reid as reid_mod
 
 Array = jax.Array
 
@@ -74,7 +82,13 @@ class PeoplePFConfig:
         of the detections, and in a room where furniture legs are detected too it reaches
         metres and merges people standing side by side (inf reproduces the paper).
       min_cluster_weight: a cluster lighter than this is not a person estimate.
-      gate: a cluster farther than this (m) from the predicted target is not the target.
+      gate: a cluster farther than this (m) from the predicted target is not the target (by
+        motion continuity alone).
+      reacquire_speed, max_gate: with colours, a target lost for t seconds may be taken up
+        again up to ``min(gate + reacquire_speed t, max_gate)`` away (m/s, m).
+      reid: `jaxtrack.tracking.reid.ReidConfig` of the colour evidence (its ``evidence`` clip,
+        ``colour_radius``, ``colour_margin`` and ``switch``: the evidence that excludes or
+        re-acquires a cluster).
       resampler: "systematic" (default, exact), "multinomial", "stratified", "stop_gradient"
         (unbiased score-function gradients) or "soft" (mixing ``soft_alpha``).
       soft_alpha: mixing of soft resampling.
@@ -91,6 +105,9 @@ class PeoplePFConfig:
     threshold_cap: float = float("inf")
     min_cluster_weight: float = 0.03
     gate: float = 1.0
+    reacquire_speed: float = 1.0
+    max_gate: float = 4.0
+    reid: reid_mod.ReidConfig = reid_mod.ReidConfig()
     resampler: str = "systematic"
     soft_alpha: float = 0.5
     cluster_floor: float = 0.1
@@ -132,6 +149,7 @@ class PeoplePFParams(NamedTuple):
       log_clutter_density: [S] log clutter density of each sensor (1/m^2).
       log_birth_std: log position std of births around a detection (m).
       log_birth_speed_std: log velocity std of births (m/s).
+      log_colour_std: log spread of the target's colour feature (selection by colour).
       dt: scan period (s).
       config: `PeoplePFConfig` (static).
     """
@@ -142,13 +160,14 @@ class PeoplePFParams(NamedTuple):
     log_clutter_density: Array
     log_birth_std: Array
     log_birth_speed_std: Array
+    log_colour_std: Array
     dt: Array
     config: PeoplePFConfig
 
     @staticmethod
     def create(config: PeoplePFConfig = PeoplePFConfig(), *, dt=0.1, q=1.0, std=(0.1, 0.3),
                p_detect=(0.8, 0.8), clutter_density=(0.05, 0.05), birth_std=0.2,
-               birth_speed_std=0.5, dtype=jnp.float32) -> "PeoplePFParams":
+               birth_speed_std=0.5, colour_std=0.1, dtype=jnp.float32) -> "PeoplePFParams":
         """Parameters from natural values; one entry of ``std``, ``p_detect`` and
         ``clutter_density`` per sensor (defaults: laser legs 0.1 m, RGB-D 0.3 m as seed 003).
 
@@ -159,15 +178,16 @@ class PeoplePFParams(NamedTuple):
                         (std, p_detect, clutter_density))
         if not std.shape == pd.shape == lam.shape:
             raise ValueError("std, p_detect and clutter_density need one entry per sensor")
-        if min(q, dt, birth_std, birth_speed_std) <= 0 or bool(jnp.any(std <= 0)) or \
-                bool(jnp.any(lam <= 0)):
-            raise ValueError("q, dt, std, clutter_density and the birth stds must be > 0")
+        if min(q, dt, birth_std, birth_speed_std, colour_std) <= 0 or \
+                bool(jnp.any(std <= 0)) or bool(jnp.any(lam <= 0)):
+            raise ValueError("q, dt, std, clutter_density, colour_std and the birth stds must "
+                             "be > 0")
         if bool(jnp.any((pd <= 0) | (pd >= 1))):
             raise ValueError("p_detect must be in (0, 1)")
         f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
         return PeoplePFParams(f(jnp.log(q)), jnp.log(std), jnp.log(pd) - jnp.log1p(-pd),
                               jnp.log(lam), f(jnp.log(birth_std)), f(jnp.log(birth_speed_std)),
-                              f(dt), config)
+                              f(jnp.log(colour_std)), f(dt), config)
 
 
 class Scan(NamedTuple):
@@ -178,12 +198,14 @@ class Scan(NamedTuple):
       fov: [3] ``(half_angle rad, min_range m, max_range m)`` around the sensor's heading.
       heading: the sensor's heading relative to the robot's (rad; a camera on a pan unit), or
         None (it looks along the robot's heading).
+      colour: [M, 3] colour features of the detections (an RGB-D camera's), or None.
     """
 
     xy: Array
     mask: Array
     fov: Array
     heading: Array | None = None
+    colour: Array | None = None
 
 
 class PeoplePFState(NamedTuple):
@@ -195,6 +217,8 @@ class PeoplePFState(NamedTuple):
       target_mean: [4] target (user) estimate; target_cov: [4, 4].
       target_found: bool, a cluster was associated with the target at the last step.
       births: [B, 2] detections of the last scan to draw births around; birth_mask: [B].
+      target_colour: [3] the target's colour feature (selection by colour), or None.
+      lost_time: seconds since a cluster was last associated with the target.
     """
 
     particles: particle.ParticleSet
@@ -204,6 +228,8 @@ class PeoplePFState(NamedTuple):
     target_found: Array
     births: Array
     birth_mask: Array
+    target_colour: Array | None = None
+    lost_time: Array | None = None
 
 
 def field_of_view(xy: Array, robot_pose: Array, fov: Array, softness: float = 0.05) -> Array:
@@ -249,30 +275,43 @@ def log_likelihood(params: PeoplePFParams, positions: Array, scans: tuple[Scan, 
 
 
 def select_target(clusters: clustering.Clusters, predicted: Array, gate: float,
-                  min_weight: float, predicted_cov: Array | None = None
+                  min_weight: float, predicted_cov: Array | None = None,
+                  colour_llr: Array | None = None, wide_gate=None, switch: float = 2.0
                   ) -> tuple[Array, Array]:
-    """The cluster that is the target: among clusters heavier than ``min_weight`` and within
-    ``gate`` (m) of the predicted target position [2], the nearest one -- in Mahalanobis
-    distance under ``predicted_cov [2, 2] + cluster covariance`` when ``predicted_cov`` is
-    given, else in metres. Returns ``(index, found)``."""
+    r"""The cluster that is the target.
+
+    Without colours: among clusters heavier than ``min_weight`` and within ``gate`` (m) of the
+    predicted target position [2], the nearest one -- in Mahalanobis distance :math:`d_M` under
+    ``predicted_cov [2, 2] + cluster covariance`` when ``predicted_cov`` is given, else in
+    metres. With ``colour_llr`` [K] (the colour log-likelihood ratio :math:`\Lambda_k` that
+    cluster k is the target): the candidates within ``gate`` whose :math:`\Lambda > -` ``switch``
+    and those within ``wide_gate`` whose :math:`\Lambda \ge` ``switch``; the one that minimises
+    :math:`	frac12 d_M^2 - \Lambda`. Returns ``(index, found)``."""
     diff = clusters.means[:, :2] - predicted
     e2 = jnp.sum(diff**2, -1)
-    ok = clusters.mask & (clusters.weights >= min_weight) & (e2 <= gate**2)
+    heavy = clusters.mask & (clusters.weights >= min_weight)
+    ok = heavy & (e2 <= gate**2)
     if predicted_cov is None:
         d2 = e2
     else:
         S = predicted_cov + clusters.covs[:, :2, :2]
         S = S + 1e-6 * jnp.eye(2, dtype=S.dtype)
         d2 = jnp.einsum("ki,kij,kj->k", diff, _linalg.inv2(S), diff)
+    if colour_llr is not None:
+        wide = gate if wide_gate is None else wide_gate
+        ok = (ok & (colour_llr > -switch)) | (heavy & (e2 <= wide**2) & (colour_llr >= switch))
+        d2 = 0.5 * d2 - colour_llr
     d2 = jnp.where(ok, d2, jnp.inf)
     idx = jnp.argmin(d2)
     return idx, jnp.isfinite(d2[idx])
 
 
 def init(key: Array, params: PeoplePFParams, target_position: Array, *, position_std=0.2,
-         speed_std=0.3, max_births: int = 16) -> PeoplePFState:
+         speed_std=0.3, max_births: int = 16, target_colour: Array | None = None
+         ) -> PeoplePFState:
     """Particles around the known initial target position [2] (the robot is shown whom to
-    follow), zero mean velocity.
+    follow), zero mean velocity; ``target_colour`` [3]: the target's colour feature, for the
+    selection by colour (None: by motion continuity alone).
 
     Example:
       >>> state = init(jax.random.PRNGKey(0), params, jnp.array([1.5, 0.0]))
@@ -290,9 +329,11 @@ def init(key: Array, params: PeoplePFParams, target_position: Array, *, position
         jnp.zeros(k, x.dtype).at[0].set(1.0), jnp.zeros((k, 4), x.dtype).at[0].set(mean),
         jnp.tile(jnp.diag(std**2), (k, 1, 1)), jnp.zeros(k, bool).at[0].set(True),
         jnp.zeros((k, 2), x.dtype).at[0].set(target_position), jnp.zeros(n, jnp.int32))
+    colour = None if target_colour is None else jnp.asarray(target_colour, x.dtype)
     return PeoplePFState(particle.ParticleSet(x, lw), clusters, mean, jnp.diag(std**2),
                          jnp.asarray(True), jnp.zeros((max_births, 2), x.dtype),
-                         jnp.zeros(max_births, bool))
+                         jnp.zeros(max_births, bool), colour,
+                         None if colour is None else jnp.zeros((), x.dtype))
 
 
 def step(key: Array, state: PeoplePFState, scans: tuple[Scan, ...], robot_pose: Array,
@@ -326,7 +367,8 @@ def _step(key, state, scans, robot_pose, params):
     robot_pose = jnp.asarray(robot_pose, dtype)
     scans = tuple(Scan(jnp.asarray(s.xy, dtype), jnp.asarray(s.mask, bool),
                        jnp.asarray(s.fov, dtype),
-                       None if s.heading is None else jnp.asarray(s.heading, dtype))
+                       None if s.heading is None else jnp.asarray(s.heading, dtype),
+                       None if s.colour is None else jnp.asarray(s.colour, dtype))
                   for s in scans)
     F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
     chol_q = _linalg.cholesky(Q + 1e-9 * jnp.eye(4, dtype=Q.dtype)).astype(dtype)
@@ -364,8 +406,18 @@ def _step(key, state, scans, robot_pose, params):
         ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)
     pred_mean = F @ state.target_mean
     pred_cov = F @ state.target_cov @ F.T + Q.astype(dtype)
-    idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
-                               pred_cov[:2, :2])
+    coloured = [s for s in scans if s.colour is not None]
+    if state.target_colour is not None and coloured:
+        s = coloured[0]
+        llr = reid_mod.evidence(cfg.reid, reid_mod.ReidState(state.target_colour, None, None),
+                                clusters.means[:, :2], clusters.mask, s.xy, s.colour, s.mask,
+                                jnp.exp(params.log_colour_std))
+        wide = jnp.minimum(cfg.gate + cfg.reacquire_speed * state.lost_time, cfg.max_gate)
+        idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
+                                   pred_cov[:2, :2], llr, wide, cfg.reid.switch)
+    else:
+        idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
+                                   pred_cov[:2, :2])
     # The target keeps its own constant-velocity Kalman filter, updated with the selected
     # cluster's mean under the cluster's covariance: when the user brushes past someone and
     # the two clusters merge for a few scans, the spread-out merged cluster moves the estimate
@@ -385,7 +437,10 @@ def _step(key, state, scans, robot_pose, params):
     b_xy = jnp.zeros((cap, 2), dtype).at[:order.shape[0]].set(
         jnp.where(all_mask[order, None], all_xy[order], 0.0))
     b_mask = jnp.zeros(cap, bool).at[:order.shape[0]].set(all_mask[order])
-    return PeoplePFState(ps, clusters, mean, cov, found, b_xy, b_mask)
+    lost = None if state.lost_time is None else jnp.where(found, 0.0, state.lost_time
+                                                           + params.dt).astype(dtype)
+    return PeoplePFState(ps, clusters, mean, cov, found, b_xy, b_mask, state.target_colour,
+                         lost)
 
 
 def _balance(ps, clusters, det_xy, det_mask, cfg):

@@ -225,3 +225,78 @@ def test_bad_input_raises_clearly():
     st = pd.init(jax.random.PRNGKey(0), CFG, 6)
     with pytest.raises(ValueError, match="robot_pose"):
         pd.step(jax.random.PRNGKey(0), CFG, st, jnp.zeros(2), 0.1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The shop: shoppers on the aisle graph
+
+
+@pytest.fixture(scope="module")
+def shop_cfg():
+    from sims.following import scene
+
+    return scene.pedestrian_config(scene.build(num_people=6, layout="shop"), distractors=5)
+
+
+def _shop_rollout(cfg, state, robot, steps, seed=1):
+    return jax.jit(lambda k, s: pd.rollout(k, cfg, s, robot, steps, 0.1))(
+        jax.random.PRNGKey(seed), state)
+
+
+def test_shoppers_keep_out_of_the_shelves_and_the_cart(shop_cfg):
+    cfg = shop_cfg
+    st = pd.init(jax.random.PRNGKey(0), cfg, 6)
+    robot = jnp.asarray(pd.robot_start(cfg, st))
+    _, traj = _shop_rollout(cfg, st, robot, 400)
+    pos, mask = np.asarray(traj.pos), np.asarray(traj.mask)
+    boxes = np.asarray(cfg.boxes)
+    lo, hi = boxes[:, :2] - boxes[:, 2:], boxes[:, :2] + boxes[:, 2:]
+    q = np.clip(pos[..., None, :], lo, hi)
+    gap = np.linalg.norm(pos[..., None, :] - q, axis=-1).min(-1)
+    r = cfg.forces.person_radius
+    assert gap[mask].min() > r - 0.05          # nobody walks into a shelf (the route stays free)
+    d = np.linalg.norm(pos - np.asarray(robot[:2]), axis=-1)
+    assert d[mask].min() > r + cfg.robot_radius - 0.05    # nor through the cart
+    # They walk: every shopper covers ground, and stops at shelves some of the time.
+    travelled = np.linalg.norm(np.diff(pos, axis=0), axis=-1).sum(0)
+    assert np.all(travelled[np.asarray(st.mask)] > 3.0)
+    stopped = np.asarray(traj.stop_timer)[:, np.asarray(st.mask)] > 0
+    assert 0.05 < stopped.mean() < 0.9
+
+
+def test_a_shopper_stops_facing_the_shelf(shop_cfg):
+    cfg = shop_cfg
+    st = pd.init(jax.random.PRNGKey(3), cfg, 6)
+    _, traj = _shop_rollout(cfg, st, jnp.array([-6.5, -5.0, 0.0]), 500, seed=2)
+    stop = np.asarray(traj.stop_timer) > 0
+    facing = np.asarray(traj.face)
+    heading = np.asarray(traj.heading)
+    speed = np.linalg.norm(np.asarray(traj.vel), axis=-1)
+    # A second into a shelf stop a shopper stands, turned to the shelf (+-90 deg).
+    late = stop & (np.roll(stop, 10, axis=0)) & (speed < 0.2)
+    late[:10] = False
+    # Most long stops are at shelves (the others: someone standing in the aisle).
+    shelf = late & np.isclose(np.abs(facing), np.pi / 2, atol=1e-5)
+    assert late.sum() > 50 and shelf.sum() > 0.7 * late.sum()
+    err = np.abs((heading - facing + np.pi) % (2 * np.pi) - np.pi)[shelf]
+    assert np.median(err) < 0.2
+
+
+def test_the_user_passes_beside_a_cart_standing_in_the_aisle(shop_cfg):
+    cfg = shop_cfg._replace(distractors=0, user=pd.UserBehaviour(wait=None))
+    g = cfg.aisles
+    nodes = np.asarray(g.nodes)
+    start = int(np.argmin(np.linalg.norm(nodes - [-3.8, -1.3], axis=1)))
+    far = [i for i in np.flatnonzero(g.spot)
+           if np.allclose(nodes[i], [3.8, -0.95], atol=1e-6)][0]
+    st = pd.init(jax.random.PRNGKey(0), cfg, 6)
+    xy = jnp.asarray(nodes[start], st.pos.dtype)
+    st = st._replace(pos=st.pos.at[0].set(xy), node=st.node.at[0].set(jnp.int32(start)),
+                     target=st.target.at[0].set(jnp.int32(far)), goal=st.goal.at[0].set(xy))
+    # The cart stands in the middle of the aisle, between the user and the shelf spot.
+    robot = jnp.array([-2.0, -1.3, np.pi])
+    _, traj = _shop_rollout(cfg, st, robot, 150)
+    x = np.asarray(traj.pos[:, 0])
+    assert x[-1, 0] > 0.0                        # past the cart
+    assert np.linalg.norm(x - np.asarray(robot[:2]), axis=-1).min() > (
+        cfg.robot_radius + cfg.forces.person_radius - 0.05)

@@ -247,3 +247,21 @@ def test_bad_input_raises_clear_errors():
         rgbd.odometry(key, rgbd.OdometryConfig(), jnp.zeros(3), jnp.zeros(2))
     with pytest.raises(ValueError, match="odom must have shape"):
         rgbd.integrate(jnp.zeros(3), jnp.zeros(2))
+
+
+def test_a_shelf_hides_the_people_behind_it():
+    # Two people ahead; a shelf edge crosses the line of sight to the second only.
+    cfg = rgbd.RGBDConfig(miss_prob=0.0, false_rate=0.0)
+    people = jnp.array([[2.0, 0.5], [3.0, -0.6]])
+    shelf = jnp.array([[[2.0, -1.0], [2.0, -0.1]]])
+    colours = jnp.full((2, 3), 0.5)
+    mask = jnp.array([True, True])
+    free = rgbd.detect(jax.random.PRNGKey(0), cfg, jnp.zeros(3), people, mask, colours)
+    hidden = rgbd.detect(jax.random.PRNGKey(0), cfg, jnp.zeros(3), people, mask, colours,
+                         walls=shelf)
+    assert sorted(np.asarray(free.person_id)[np.asarray(free.mask)].tolist()) == [0, 1]
+    assert np.asarray(hidden.person_id)[np.asarray(hidden.mask)].tolist() == [0]
+    # The same test from a camera turned away: nobody (the field of view turns with it).
+    back = rgbd.detect(jax.random.PRNGKey(0), cfg, jnp.array([0.0, 0.0, np.pi]), people, mask,
+                       colours)
+    assert not np.asarray(back.mask).any()
