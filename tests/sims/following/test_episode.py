@@ -172,6 +172,37 @@ def test_cli_rejects_bad_arguments(capsys):
     with pytest.raises(SystemExit):
         cli.main(["run", "person-following", "--people", "40"])
     assert "--people" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["run", "person-following", "--layout", "warehouse"])
+    assert "invalid choice: 'warehouse'" in capsys.readouterr().err
+
+
+def test_cli_passes_the_layout_user_and_animation(monkeypatch):
+    from sims import cli
+    from sims.following import report
+
+    seen = {}
+    monkeypatch.setattr(report, "run_person_following", lambda *a, **kw: seen.update(kw))
+    assert cli.main(["run", "person-following", "--layout", "room", "--user", "wander",
+                     "--animate"]) == 0
+    assert seen["layout"] == "room" and seen["wander"] and seen["animate"]
+    assert cli.main(["run", "person-following"]) == 0
+    assert seen["layout"] == "shop" and not seen["wander"] and not seen["animate"]
+
+
+def test_the_shop_scenario_is_followable_with_perfect_perception():
+    # The truth floor in the shop, small: the cart keeps its shopper within the following
+    # distance, never touches a shelf, and its camera turns with the user.
+    cfg = ep.scenario("shop", "truth", distractors=2, duration=15.0, num_people=3)
+    frames = jax.jit(jax.vmap(ep.make_rollout(cfg), (0, None)))(
+        jax.random.split(jax.random.PRNGKey(1), 2), ep.make_params(cfg))
+    f = jax.tree_util.tree_map(np.asarray, frames)
+    assert np.sqrt(np.mean(f.follow_error ** 2)) < 0.8
+    boxes = cfg.scene.layout.boxes()
+    q = np.clip(f.robot[..., None, :2], boxes[:, :2] - boxes[:, 2:], boxes[:, :2] + boxes[:, 2:])
+    clearance = np.linalg.norm(f.robot[..., None, :2] - q, axis=-1).min()
+    assert clearance > cfg.scene.robot_radius
+    assert np.all(np.abs(f.pan) <= np.radians(150.0) + 1e-6) and np.abs(f.pan).max() > 0.05
 
 
 def test_command_prints_table_and_writes_plots(tmp_path):
