@@ -3,8 +3,13 @@ r"""K-clustering of particles into people (seed 004: Algorithms 2-5 and eq. 5).
 The particle filter of the shopping-cart paper keeps one multimodal posterior over everybody in
 view; KClusterise (Algorithm 2) extracts up to ``N_K`` people from it:
 
-- `find_clusters` (Algorithm 3): scan the particles in order and make a particle a centroid when
-  it is farther than :math:`\delta_{far}` from every centroid found so far (at most ``N_K``).
+- `find_clusters` (Algorithm 3): make a particle a centroid when it is farther than
+  :math:`\delta_{far}` from every centroid found so far (at most ``N_K``). The paper adds them
+  "using a priority queue principle, considering the distance", so that "K will contain the
+  most distant N_K points" (``priority="distance"``, the default): the next centroid is the far
+  particle most distant from the centroids so far (the first particle to begin with), i.e.
+  farthest-point sampling stopped at :math:`\delta_{far}`. ``priority="order"`` takes the far
+  particles in the order the loop visits them instead.
 - `classify_particles` (Algorithm 4): give each particle to the *first* centroid (in order)
   closer than :math:`\delta_{far}`; particles with none are outliers.
 - `spread_outliers` (Algorithm 5): give each outlier to its nearest centroid.
@@ -13,10 +18,10 @@ view; KClusterise (Algorithm 2) extracts up to ``N_K`` people from it:
 Each cluster is then summarised by its weight, mean and covariance: the Gaussian approximation
 handed to the controller. Everything is fixed-shape with masks and jittable.
 
-Algorithm 3 is sequential, but its result has a closed form that vectorises: the next centroid
-is always the *first* particle that is far from all centroids so far (every earlier particle was
-already close to a subset of them). `find_clusters` therefore runs ``N_K`` vectorised rounds
-instead of an N-step loop, with the same output.
+Both orders vectorise: each round picks the next centroid among the particles far from all
+centroids so far (the most distant one, or the first one: every earlier particle was already
+close to a subset of them), so `find_clusters` runs ``N_K`` vectorised rounds instead of an
+N-step loop, with the same output as the loop.
 """
 
 from __future__ import annotations
@@ -123,34 +128,45 @@ def _distances(points, centroids):
 
 
 def find_clusters(points: Array, threshold, max_clusters: int,
-                  mask: Array | None = None) -> tuple[Array, Array]:
+                  mask: Array | None = None, priority: str = "distance"
+                  ) -> tuple[Array, Array]:
     """Algorithm 3 (FindCluster): up to ``max_clusters`` mutually distant centroids.
 
     Args:
       points: [N, d] particle positions, in the order Algorithm 3 visits them.
-      threshold: :math:`\\delta_{far}` (m); a particle becomes a centroid when it is strictly
-        farther than this from every centroid so far.
+      threshold: :math:`\\delta_{far}` (m); a particle may become a centroid when it is
+        strictly farther than this from every centroid so far.
       max_clusters: N_K (static).
       mask: optional [N] bools; masked or non-finite points are skipped.
+      priority: "distance" (the paper's priority queue: the far particle most distant from the
+        centroids so far comes next; ties to the first) or "order" (the first far particle).
 
     Returns:
       ``(centroids [N_K, d], centroid_mask [N_K])``; centroids are in discovery order.
+
+    Example:
+      >>> centroids, found = find_clusters(particles[:, :2], 0.6, 8)
     """
+    _checks.check_options("priority", (priority,), ("distance", "order"))
     valid = _valid(points, mask)
     points = jnp.where(valid[:, None], points, 0.0)
     n = points.shape[0]
+    dtype = points.dtype
 
-    def round_(carry, _):
-        far, = carry
-        candidate = far & valid
+    def round_(d_min, _):
+        candidate = valid & (d_min > threshold)
         found = jnp.any(candidate)
-        idx = jnp.argmax(candidate)
+        if priority == "distance":
+            idx = jnp.argmax(jnp.where(candidate, d_min, -1.0))
+        else:
+            idx = jnp.argmax(candidate)
         centroid = points[idx]
         d = jnp.sqrt(jnp.sum((points - centroid) ** 2, -1))
-        far = jnp.where(found, far & (d > threshold), far)
-        return (far,), (centroid, found)
+        d_min = jnp.where(found, jnp.minimum(d_min, d), d_min)
+        return d_min, (centroid, found)
 
-    (_,), (centroids, found) = lax.scan(round_, (jnp.ones(n, bool),), None, length=max_clusters)
+    _, (centroids, found) = lax.scan(round_, jnp.full(n, jnp.inf, dtype), None,
+                                     length=max_clusters)
     return jnp.where(found[:, None], centroids, 0.0), found
 
 
@@ -184,7 +200,8 @@ def spread_outliers(points: Array, centroids: Array, centroid_mask: Array, label
 
 
 def kclusterise(particles: Array, log_weights: Array, threshold, max_clusters: int,
-                position_dims: int = 2, mask: Array | None = None) -> Clusters:
+                position_dims: int = 2, mask: Array | None = None,
+                priority: str = "distance") -> Clusters:
     """Algorithm 2 (KClusterise) and the Gaussian summary of every cluster.
 
     Distances use the first ``position_dims`` components; means and covariances cover the whole
@@ -193,6 +210,7 @@ def kclusterise(particles: Array, log_weights: Array, threshold, max_clusters: i
     Args:
       particles: [N, n]; log_weights: [N]; threshold: delta_far (see `dynamic_threshold`);
       max_clusters: N_K (static); position_dims: d; mask: optional [N] bools.
+      priority: `find_clusters`' order ("distance", the paper's, or "order").
 
     Returns:
       `Clusters`.
@@ -210,7 +228,7 @@ def kclusterise(particles: Array, log_weights: Array, threshold, max_clusters: i
         raise ValueError(f"max_clusters must be >= 1; got {max_clusters}")
     valid = _valid(particles, mask) & ~jnp.isnan(log_weights)
     pos = particles[:, :position_dims]
-    centroids, cmask = find_clusters(pos, threshold, max_clusters, valid)
+    centroids, cmask = find_clusters(pos, threshold, max_clusters, valid, priority)
     labels = classify_particles(pos, centroids, cmask, threshold, valid)
     labels = spread_outliers(pos, centroids, cmask, labels, valid)
     lw = normalize(jnp.where(valid, log_weights, -jnp.inf))

@@ -75,7 +75,10 @@ class PeoplePFConfig:
       num_particles: N.
       max_clusters: N_K of Algorithm 2.
       birth_fraction: fraction of the particles re-drawn around the previous detections.
-      threshold_mode: "half_mean" or "paper" (see `clustering.dynamic_threshold`).
+      threshold_mode: "paper" (eq. 5 as printed, the default) or "half_mean" (half the mean
+        pairwise distance; see `clustering.dynamic_threshold` for where eq. 5 fails).
+      cluster_priority: `clustering.find_clusters`' order, "distance" (the paper's priority
+        queue) or "order".
       threshold_floor: lower bound of the clustering threshold (m); eq. 5 gives 0 with fewer
         than two detections per sensor.
       threshold_cap: upper bound of the clustering threshold (m); eq. 5 grows with the spread
@@ -100,7 +103,8 @@ class PeoplePFConfig:
     num_particles: int = 512
     max_clusters: int = 8
     birth_fraction: float = 0.1
-    threshold_mode: str = "half_mean"
+    threshold_mode: str = "paper"
+    cluster_priority: str = "distance"
     threshold_floor: float = 0.4
     threshold_cap: float = float("inf")
     min_cluster_weight: float = 0.03
@@ -117,6 +121,7 @@ class PeoplePFConfig:
     def __post_init__(self):
         _checks.check_options("resampler", (self.resampler,), _RESAMPLERS)
         _checks.check_options("threshold_mode", (self.threshold_mode,), ("half_mean", "paper"))
+        _checks.check_options("cluster_priority", (self.cluster_priority,), ("distance", "order"))
         if self.num_particles < 2 or self.max_clusters < 1:
             raise ValueError("need num_particles >= 2 and max_clusters >= 1")
         if not 0.0 <= self.birth_fraction < 1.0:
@@ -401,7 +406,8 @@ def _step(key, state, scans, robot_pose, params):
         scans[0].xy, other.xy, scans[0].mask, other.mask, floor=cfg.threshold_floor,
         mode=cfg.threshold_mode)
     threshold = jnp.minimum(threshold, cfg.threshold_cap)
-    clusters = clustering.kclusterise(ps.particles, ps.log_weights, threshold, cfg.max_clusters)
+    clusters = clustering.kclusterise(ps.particles, ps.log_weights, threshold, cfg.max_clusters,
+                                      priority=cfg.cluster_priority)
     if cfg.cluster_floor > 0:
         ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)
     pred_mean = F @ state.target_mean

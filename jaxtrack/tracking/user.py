@@ -303,8 +303,11 @@ class ParticleConfig:
     """Static configuration of `particle_filter`.
 
     Attributes:
-      pf: `people_pf.PeoplePFConfig` (256 particles, 8 clusters, a 0.7 m target gate, the
-        clustering threshold capped at 0.6 m).
+      pf: `people_pf.PeoplePFConfig` (256 particles, 8 clusters, a 0.7 m target gate; the
+        clustering as the seed writes it: the priority-queue FindCluster and eq. 5's
+        threshold. ``threshold_mode="half_mean"`` or a ``threshold_cap`` are the fixes for
+        crowds, where eq. 5 merges people: docs/design_notes.md, "People PF: eq. 5 in a
+        crowd").
       sensors: "both", "laser" or "rgbd".
       laser_fov, rgbd_fov: ``(half_angle rad, min_range m, max_range m)`` of the detectors.
       max_births: births are drawn around at most this many of the last scan's detections.
@@ -315,7 +318,7 @@ class ParticleConfig:
     """
 
     pf: people_pf.PeoplePFConfig = people_pf.PeoplePFConfig(num_particles=256, max_clusters=8,
-                                                            gate=0.7, threshold_cap=0.6)
+                                                            gate=0.7)
     sensors: str = "both"
     laser_fov: tuple = (2.094, 0.1, 5.6)
     rgbd_fov: tuple = (0.497, 0.5, 4.5)

@@ -14,7 +14,8 @@ N_K = 6
 
 # --- Reference: the paper's pseudo-code, line by line ------------------------------------------
 
-def ref_find_cluster(P, delta, n_k):
+def ref_find_cluster_in_order(P, delta, n_k):
+    """Algorithm 3 with line 6 appending in visiting order (``priority="order"``)."""
     K = []
     for p in P:
         is_far = True
@@ -24,6 +25,31 @@ def ref_find_cluster(P, delta, n_k):
             is_far = math.dist(p, k) > delta
         if is_far and len(K) < n_k:
             K.append(p)
+    return K
+
+
+def ref_find_cluster(P, delta, n_k):
+    """Algorithm 3 with line 6 as the paper says: "a priority queue principle, considering the
+    distance", so that "K will contain the most distant N_K points". Lines 1-5 find the far
+    particles; the queue hands out the one most distant from the centroids so far (the first
+    in visiting order among equals), which line 6 adds; until N_K or no far particle is left."""
+    K = []
+    while len(K) < n_k:
+        queue = []                              # (priority, visiting order, particle)
+        for order, p in enumerate(P):           # line 1
+            is_far = True                       # line 2
+            d_min = math.inf
+            for k in K:                         # line 3
+                if not is_far:
+                    break
+                d = math.dist(p, k)
+                is_far = d > delta              # line 4
+                d_min = min(d_min, d)
+            if is_far:                          # line 5
+                queue.append((-d_min, order, p))
+        if not queue:
+            break
+        K.append(min(queue)[2])                 # line 6: the most distant first
     return K
 
 
@@ -87,6 +113,35 @@ def test_kclusterise_equals_python_transcription_of_algorithms_2_to_5(seed):
         np.testing.assert_allclose(res.means[j], np.average(P[sel], 0, w[sel]), rtol=1e-10)
         np.testing.assert_allclose(res.covs[j], np.cov(P[sel].T, aweights=w[sel], bias=True),
                                    atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_find_clusters_in_visiting_order_equals_the_plain_loop(seed):
+    rng = np.random.default_rng(seed + 10)
+    P = rng.uniform(-3, 3, size=(60, 2))
+    delta = rng.uniform(0.8, 2.5)
+    K = ref_find_cluster_in_order([tuple(p) for p in P], delta, N_K)
+    cents, cmask = clustering.find_clusters(jnp.asarray(P), delta, N_K, priority="order")
+    assert int(cmask.sum()) == len(K)
+    np.testing.assert_allclose(np.asarray(cents)[: len(K)], np.array(K), atol=0)
+    # The priority queue takes different, more spread out centroids.
+    Kq = ref_find_cluster([tuple(p) for p in P], delta, N_K)
+    assert Kq[0] == K[0] and Kq != K
+
+
+def test_the_paper_s_clustering_is_the_default():
+    from jaxtrack.tracking import people_pf, user
+
+    cfg = people_pf.PeoplePFConfig()
+    assert cfg.threshold_mode == "paper" and cfg.cluster_priority == "distance"
+    assert cfg.threshold_cap == math.inf
+    pf = user.ParticleConfig().pf
+    assert pf.threshold_mode == "paper" and pf.cluster_priority == "distance"
+    assert pf.threshold_cap == math.inf
+    # eq. 5 itself: the dynamic threshold's default mode is the printed formula.
+    PL, PK = [(0.0, 0.0), (2.0, 0.0), (0.0, 3.0)], [(1.0, 1.0), (4.0, 0.0)]
+    got = float(clustering.dynamic_threshold(jnp.asarray(PL), jnp.asarray(PK)))
+    assert got == pytest.approx(ref_threshold(PL, PK), rel=1e-12)
 
 
 def test_individual_algorithms_match_the_transcription_with_a_mask():

@@ -99,10 +99,11 @@ def test_single_person_matches_kalman(single_person_run):
     assert np.abs(means[-5:, 2:] - kf[-5:, 2:]).max() < 0.15
 
 
-@pytest.fixture(scope="module")
-def crowd_run():
+@pytest.fixture(scope="module", params=["half_mean", "paper"])
+def crowd_run(request):
     dt, steps = 0.1, 40
-    cfg = people_pf.PeoplePFConfig(num_particles=600, max_clusters=6)
+    cfg = people_pf.PeoplePFConfig(num_particles=600, max_clusters=6,
+                                   threshold_mode=request.param)
     params = people_pf.PeoplePFParams.create(cfg, dt=dt, std=(0.1, 0.3))
     starts = [[2.0, 0.0], [2.0, 2.5], [4.0, -2.5]]
     vels = [[0.6, 0.0], [0.0, -0.3], [-0.5, 0.4]]
@@ -128,20 +129,30 @@ def crowd_run():
               jnp.asarray(rgbd, jnp.float32), jnp.asarray(keep))
         return jax.lax.scan(body, state, xs)[1]
 
-    return run, truth
+    return run, truth, request.param
 
 
 def test_crowd_target_kept_and_everyone_clustered(crowd_run):
-    run, truth = crowd_run
+    # Three people 2.5-5 m apart. Half the mean distance keeps a cluster on each; eq. 5 as
+    # printed grows with the crowd (its numerator with the square of the detections, its
+    # denominator linearly: about 7 m here) and merges them, losing the target's cluster at
+    # times: the case its ``half_mean`` fix is for.
+    run, truth, mode = crowd_run
     target, found, cmeans, cmask, cw = (np.asarray(x) for x in run(jax.random.PRNGKey(5)))
     err = np.linalg.norm(target[:, :2] - truth[:, 0], axis=1)
-    assert found.all()
-    assert err[5:].max() < 0.25, err
+    if mode == "half_mean":
+        assert found.all()
+        assert err[5:].max() < 0.25, err
     # After births have spread particles to everyone, each person has a cluster within 0.3 m.
+    separate = []
     for t in range(20, truth.shape[0]):
         live = cmeans[t][cmask[t] & (cw[t] > 0.03), :2]
         d = np.linalg.norm(truth[t][:, None] - live[None], axis=-1).min(1)
-        assert (d < 0.35).all(), (t, d)
+        separate.append(bool((d < 0.35).all()))
+    if mode == "half_mean":
+        assert all(separate)
+    else:
+        assert np.mean(separate) < 0.5 and not found.all()
 
 
 def test_bad_input():
