@@ -238,16 +238,22 @@ def shop_cfg():
     return scene.pedestrian_config(scene.build(num_people=6, layout="shop"), distractors=5)
 
 
-def _shop_rollout(cfg, state, robot, steps, seed=1):
-    return jax.jit(lambda k, s: pd.rollout(k, cfg, s, robot, steps, 0.1))(
-        jax.random.PRNGKey(seed), state)
+def _shop_rollout(cfg, state, robot, steps=400, seed=1):
+    return jax.jit(lambda k, s, r: pd.rollout(k, cfg, s, r, steps, 0.1))(
+        jax.random.PRNGKey(seed), state, robot)
 
 
-def test_shoppers_keep_out_of_the_shelves_and_the_cart(shop_cfg):
+@pytest.fixture(scope="module")
+def shop_run(shop_cfg):
+    """40 s of five shoppers and the user around a cart standing at its start."""
+    st = pd.init(jax.random.PRNGKey(0), shop_cfg, 6)
+    robot = jnp.asarray(pd.robot_start(shop_cfg, st))
+    return st, robot, _shop_rollout(shop_cfg, st, robot)[1]
+
+
+def test_shoppers_keep_out_of_the_shelves_and_the_cart(shop_cfg, shop_run):
     cfg = shop_cfg
-    st = pd.init(jax.random.PRNGKey(0), cfg, 6)
-    robot = jnp.asarray(pd.robot_start(cfg, st))
-    _, traj = _shop_rollout(cfg, st, robot, 400)
+    st, robot, traj = shop_run
     pos, mask = np.asarray(traj.pos), np.asarray(traj.mask)
     boxes = np.asarray(cfg.boxes)
     lo, hi = boxes[:, :2] - boxes[:, 2:], boxes[:, :2] + boxes[:, 2:]
@@ -264,10 +270,8 @@ def test_shoppers_keep_out_of_the_shelves_and_the_cart(shop_cfg):
     assert 0.05 < stopped.mean() < 0.9
 
 
-def test_a_shopper_stops_facing_the_shelf(shop_cfg):
-    cfg = shop_cfg
-    st = pd.init(jax.random.PRNGKey(3), cfg, 6)
-    _, traj = _shop_rollout(cfg, st, jnp.array([-6.5, -5.0, 0.0]), 500, seed=2)
+def test_a_shopper_stops_facing_the_shelf(shop_run):
+    _, _, traj = shop_run
     stop = np.asarray(traj.stop_timer) > 0
     facing = np.asarray(traj.face)
     heading = np.asarray(traj.heading)
@@ -295,7 +299,7 @@ def test_the_user_passes_beside_a_cart_standing_in_the_aisle(shop_cfg):
                      target=st.target.at[0].set(jnp.int32(far)), goal=st.goal.at[0].set(xy))
     # The cart stands in the middle of the aisle, between the user and the shelf spot.
     robot = jnp.array([-2.0, -1.3, np.pi])
-    _, traj = _shop_rollout(cfg, st, robot, 150)
+    _, traj = _shop_rollout(cfg, st, robot, steps=150)
     x = np.asarray(traj.pos[:, 0])
     assert x[-1, 0] > 0.0                        # past the cart
     assert np.linalg.norm(x - np.asarray(robot[:2]), axis=-1).min() > (
