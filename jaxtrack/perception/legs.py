@@ -253,7 +253,8 @@ def leg_candidates(feats: SegmentFeatures, params: LegParams = LegParams()) -> A
 
 
 def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(), *,
-              max_people: int = 16, prev_legs: tuple[Array, Array] | None = None) -> People:
+              max_people: int = 16, prev_legs: tuple[Array, Array] | None = None,
+              compatible: Array | None = None) -> People:
     """Pair legs into people (seed 004's heuristics: two legs, close, moving alike).
 
     Greedy matching: repeatedly take the closest remaining pair of legs if it is within
@@ -270,6 +271,8 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
       params: `LegParams`.
       max_people: static capacity P.
       prev_legs: optional previous-frame legs, same frame of reference.
+      compatible: optional [S, S] bools, a further condition on the pairs (e.g. the motion
+        cue of tracked legs' velocities, `jaxtrack.perception.leg_tracker`).
 
     Returns:
       `People`.
@@ -288,10 +291,12 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
         L = _checks.shape_of(prev_legs[0])[0]
         _checks.check_shape("prev_legs xy", prev_legs[0], (L, 2))
         _checks.check_shape("prev_legs mask", prev_legs[1], (L,))
+    if compatible is not None:
+        _checks.check_shape("compatible", compatible, (S, S))
     if int(max_people) < 1:
         raise ValueError(f"max_people must be >= 1; got {max_people}")
     return _pair(jnp.asarray(legs_xy), jnp.asarray(legs_mask, bool), params, int(max_people),
-                 prev_legs)
+                 prev_legs, compatible)
 
 
 def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
@@ -442,7 +447,7 @@ def _features(xy, segs):
         position=jnp.where(m1[:, None], position, zero), mask=m1)
 
 
-def _pair(xy, mask, params, P, prev_legs):
+def _pair(xy, mask, params, P, prev_legs, compatible=None):
     S = xy.shape[0]
     dtype = xy.dtype
     diff = xy[:, None] - xy[None]
@@ -450,6 +455,8 @@ def _pair(xy, mask, params, P, prev_legs):
     allowed = mask[:, None] & mask[None] & ~jnp.eye(S, dtype=bool) & (dist <= params.pair_distance)
     if prev_legs is not None:
         allowed = allowed & _motion_compatible(xy, mask, prev_legs, params)
+    if compatible is not None:
+        allowed = allowed & jnp.asarray(compatible, bool)
     cost = jnp.where(allowed, dist, jnp.inf)
     legs_idx = jnp.arange(S, dtype=jnp.int32)
 

@@ -12,7 +12,9 @@ from a bag:
    chair leg) or on a wall are dropped (`StaticMap`: furniture legs 0.3-0.5 m apart look like a
    person's legs, and at grazing incidence range jumps cut a wall into leg-sized segments);
 3. the RGB-D people from the robot frame into the odometry frame;
-4. the laser returns in the robot frame, the obstacle points of the behaviour's safety layers.
+4. the laser returns in the robot frame, the obstacle points of the behaviour's safety layers;
+5. the leg candidates in the odometry frame, off the map, for a leg tracker
+   (`jaxtrack.tracking.leg_tracker`, seed 004's laser side).
 
 Frames: *sensor* (the laser, at ``mount`` on the robot, facing its heading), *robot*, *odometry*
 (dead reckoning from the start pose; it drifts from the world), *map* (the static map's; in
@@ -121,6 +123,9 @@ class Sensed(NamedTuple):
         simulator knows it (the ``truth`` estimator's input), else None.
       camera_pan: the RGB-D camera's pan angle relative to the robot's heading (rad) when it
         sits on a pan unit, else None (it looks straight ahead).
+      legs_xy: [S, 2] the scan's leg candidates (odometry frame), the input of a leg tracker
+        (`jaxtrack.tracking.leg_tracker`); legs_mask: [S] (the map filter applied); None where
+        not given.
     """
 
     laser_xy: Array
@@ -136,6 +141,8 @@ class Sensed(NamedTuple):
     returns_mask: Array
     truth: Array | None = None
     camera_pan: Array | None = None
+    legs_xy: Array | None = None
+    legs_mask: Array | None = None
 
 
 def empty_map(dtype=jnp.float32) -> StaticMap:
@@ -197,19 +204,26 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
     people = det.people.xy.astype(dtype)
     laser_xy = geometry.from_frame(in_odom, people)
     laser_map = geometry.from_frame(sensor_pose(map_pose, mount), people)
-    laser_mask = det.people.mask
-    if static_map.legs.shape[0]:
-        d2 = jnp.sum((laser_map[:, None] - static_map.legs[None]) ** 2, -1)
-        laser_mask = laser_mask & ~jnp.any(d2 < config.static_radius**2, 1)
-    if static_map.walls.shape[0]:
-        laser_mask = laser_mask & (wall_distance(laser_map, static_map.walls)
-                                   > config.wall_distance)
+    laser_mask = _off_map(config, static_map, laser_map, det.people.mask)
+    legs_odom = geometry.from_frame(in_odom, det.legs_xy.astype(dtype))
+    legs_map = geometry.from_frame(sensor_pose(map_pose, mount), det.legs_xy.astype(dtype))
+    legs_mask = _off_map(config, static_map, legs_map, det.legs_mask)
     K = rgbd_xy.shape[0]
     colour = jnp.zeros((K, 3), dtype) if rgbd_colour is None else rgbd_colour.astype(dtype)
     returns = det.points + jnp.asarray(mount, dtype)
     sensed = Sensed(laser_xy, laser_mask, laser_map,
                     geometry.from_frame(odom, rgbd_xy.astype(dtype)), rgbd_mask, colour, odom,
                     odometry.increment[0] / period, odometry.increment[2] / period, returns,
-                    det.valid)
-    new = SensingState(geometry.from_frame(in_odom, det.legs_xy.astype(dtype)), det.legs_mask)
+                    det.valid, legs_xy=legs_odom, legs_mask=legs_mask)
+    new = SensingState(legs_odom, det.legs_mask)
     return new, sensed
+
+
+def _off_map(config, static_map, xy_map, mask):
+    """``mask`` without the points [N, 2] (map frame) at a fixed leg or on a wall of the map."""
+    if static_map.legs.shape[0]:
+        d2 = jnp.sum((xy_map[:, None] - static_map.legs[None]) ** 2, -1)
+        mask = mask & ~jnp.any(d2 < config.static_radius**2, 1)
+    if static_map.walls.shape[0]:
+        mask = mask & (wall_distance(xy_map, static_map.walls) > config.wall_distance)
+    return mask

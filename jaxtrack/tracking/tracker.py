@@ -88,6 +88,9 @@ class TrackerConfig:
         detections that start tracks in one scan, one closer than this to an earlier one (the
         earlier sensor first) starts none. ``0`` turns both off. People's centres are never
         closer than about 0.5 m, so up to 0.4 m is safe for them.
+      births_in_gates: an unassociated detection inside a live track's gate may start a track
+        (off for people: the track would be a duplicate; on for legs, whose neighbours'
+        gates reach across the 0.1-0.4 m between a person's two legs).
     """
 
     capacity: int = 16
@@ -102,6 +105,7 @@ class TrackerConfig:
     max_position_std: float = 1.5
     num_features: int = 0
     merge_distance: float = 0.0
+    births_in_gates: bool = False
 
     def __post_init__(self):
         _checks.check_options("association", (self.association,), ("gnn", "jpda", "nn_jpda"))
@@ -574,7 +578,7 @@ def associate_nn_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Associat
 
 
 def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
-           params: TrackerParams) -> Tracks:
+           params: TrackerParams, excused: Array | None = None) -> Tracks:
     r"""Track management after the update: hit history, confirmation, deletion, merging,
     appearance and heading.
 
@@ -593,6 +597,9 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
       hypotheses: `Hypotheses` of the scan.
       assoc: `Association` of the scan (its posterior becomes the tracks' mean and cov).
       params: `TrackerParams`.
+      excused: optional [K] bools, tracks whose miss this scan is not counted (e.g. occluded:
+        `jaxtrack.perception.leg_tracker`); they coast, and the position-std limit still
+        deletes them.
 
     Returns:
       The updated `Tracks` (``next_id`` and ``num_dropped`` unchanged; no births yet).
@@ -607,7 +614,8 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
     window = (1 << cfg.confirm_window) - 1
     history = jnp.where(live, ((state.history << 1) | hit.astype(jnp.int32)) & window, 0)
     hits = state.hits + (live & hit)
-    misses = jnp.where(hit, 0, state.misses + live)
+    counted = live if excused is None else live & ~jnp.asarray(excused, bool)
+    misses = jnp.where(hit, 0, state.misses + counted)
     age = state.age + live
     recent = _popcount(history, cfg.confirm_window)
     status = jnp.where(live & (state.status == TENTATIVE) & (recent >= cfg.confirm_hits),
@@ -648,8 +656,8 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
 
     A present detection starts a track when no track used it, it lies outside every live gate
     (it would be explained by that track, even unassigned, and a duplicate would compete with
-    it) and its detector confidence is at least ``birth_confidence`` (seed 001); with
-    ``merge_distance > 0`` one closer than that to an earlier eligible detection (lower index)
+    it; unless ``births_in_gates``) and its detector confidence is at least
+    ``birth_confidence`` (seed 001); with ``merge_distance > 0`` one closer than that to an earlier eligible detection (lower index)
     starts none. The i-th eligible detection (i = 0, 1, ...) takes the i-th free slot, if there
     is one (else it is counted in ``num_dropped``), with id ``next_id + i``: ids are unique and
     increasing. A new track has mean :math:`[z, 0, 0]`, covariance
@@ -675,7 +683,7 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
     dtype = h.zs.dtype
     K, M = cfg.capacity, h.zs.shape[0]
     free = tracks.status == FREE
-    in_gate = jnp.any(h.gated & h.live[:, None], 0)
+    in_gate = jnp.any(h.gated & h.live[:, None], 0) & (not cfg.births_in_gates)
     eligible = h.mask & ~assoc.used & ~in_gate & (h.confidence >= params.birth_confidence)
     if cfg.merge_distance > 0:
         d2 = jnp.sum((h.zs[:, None] - h.zs[None]) ** 2, -1)

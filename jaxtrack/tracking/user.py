@@ -16,6 +16,9 @@ and RGB-D people in that frame, the odometry) and return a `UserEstimate` there:
 - `robot_frame_kf` (seed 002): the 6-state Kalman filter of the user in the *robot* frame with
   the odometry-driven rotation input (eqs. 4-11), measurements the nearest gated detection and
   the odometry speed, and the adaptive AR heading filter (eqs. 12-13);
+- `leg_tracked` (seed 004's laser side): any of the above fed with laser people built from
+  leg *tracks* (`jaxtrack.tracking.leg_tracker`, a Kalman filter per leg, people by the
+  paper's four heuristics, occlusions excused) instead of the per-scan leg detector's;
 - `truth`: no estimation, the true user (``Sensed.truth``, which a simulator provides): what the
   controller achieves with perfect perception, the floor of the following error.
 
@@ -44,15 +47,16 @@ from jaxtrack.filters import heading as heading_filter
 from jaxtrack.filters import kalman
 from jaxtrack.models import measurement, motion
 from jaxtrack.perception.sensing import Sensed
-from jaxtrack.tracking import people_pf, reid, stitching, tracker
+from jaxtrack.tracking import leg_tracker, people_pf, reid, stitching, tracker
 from jaxtrack.tracking.estimator import Estimator
 
 Array = jax.Array
 
 __all__ = ["SENSORS", "Prior", "UserEstimate", "MultiTargetConfig", "MultiTargetParams",
            "MultiTargetState", "ParticleConfig", "RobotFrameKFConfig", "RobotFrameKFParams",
-           "RobotFrameKFState", "TruthConfig", "TruthParams", "TruthState", "multi_target",
-           "particle_filter", "robot_frame_kf", "truth", "build", "with_sensors", "CONFIGS",
+           "RobotFrameKFState", "TruthConfig", "TruthParams", "TruthState", "LegTrackedConfig",
+           "LegTrackedState", "multi_target", "particle_filter", "robot_frame_kf", "truth",
+           "leg_tracked", "build", "with_sensors", "CONFIGS",
            "TRACKER"]
 
 SENSORS = ("both", "laser", "rgbd")
@@ -532,6 +536,81 @@ def truth(config: TruthConfig = TruthConfig()) -> Estimator:
 
 
 # ---------------------------------------------------------------------------------------------
+# Laser people from leg tracks
+
+
+@dataclasses.dataclass(frozen=True)
+class LegTrackedConfig:
+    """Static configuration of `leg_tracked`.
+
+    Attributes:
+      estimator: the configuration of the estimator fed with the tracked laser people
+        (`ParticleConfig`, `MultiTargetConfig` or `RobotFrameKFConfig`).
+      legs: `leg_tracker.LegTrackerConfig`.
+      period: the scan period (s) of the leg tracks' motion model (the episode's frame).
+    """
+
+    estimator: object = ParticleConfig()
+    legs: leg_tracker.LegTrackerConfig = leg_tracker.LegTrackerConfig()
+    period: float = 0.1
+
+    def __post_init__(self):
+        if type(self.estimator) not in (ParticleConfig, MultiTargetConfig, RobotFrameKFConfig):
+            raise TypeError("LegTrackedConfig.estimator must be a ParticleConfig, "
+                            f"MultiTargetConfig or RobotFrameKFConfig; got "
+                            f"{type(self.estimator).__name__}")
+        if not self.period > 0:
+            raise ValueError(f"period must be > 0; got {self.period}")
+
+    @property
+    def sensors(self) -> str:
+        return self.estimator.sensors
+
+
+jax.tree_util.register_static(LegTrackedConfig)
+
+
+class LegTrackedState(NamedTuple):
+    """inner: the wrapped estimator's state; legs: `leg_tracker.LegTrackerState`."""
+
+    inner: object
+    legs: leg_tracker.LegTrackerState
+
+
+def leg_tracked(config: LegTrackedConfig = LegTrackedConfig()) -> Estimator:
+    """An estimator whose laser people are built from leg tracks (`leg_tracker.step` on
+    ``Sensed.legs_xy``, with the scan's returns for the occlusions) rather than detected scan
+    by scan: seed 004's laser side. Parameters are the wrapped estimator's; its name gets
+    ``"+legs"``.
+
+    Example:
+      >>> est = leg_tracked(LegTrackedConfig(ParticleConfig()))
+    """
+    inner = build(config.estimator)
+
+    def init(key, params, prior: Prior) -> LegTrackedState:
+        # The leg tracks in the dtype of the wrapped estimator's parameters.
+        leaves = [x for x in jax.tree_util.tree_leaves(params)
+                  if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)]
+        dtype = jnp.asarray(leaves[0] if leaves else prior.odom_pose).dtype
+        return LegTrackedState(inner.init(key, params, prior),
+                               leg_tracker.init(config.legs, dtype))
+
+    def update(key, state: LegTrackedState, z: Sensed, params):
+        if z.legs_xy is None or z.legs_mask is None:
+            raise ValueError("a leg-tracked estimator needs the leg candidates "
+                             "(Sensed.legs_xy, Sensed.legs_mask)")
+        legs, people = leg_tracker.step(config.legs, state.legs, z.legs_xy, z.legs_mask,
+                                        z.returns_xy, z.returns_mask, z.odom_pose,
+                                        dt=config.period, max_people=z.laser_xy.shape[0])
+        z = z._replace(laser_xy=people.xy.astype(z.laser_xy.dtype), laser_mask=people.mask)
+        inner_state, est = inner.update(key, state.inner, z, params)
+        return LegTrackedState(inner_state, legs), est
+
+    return Estimator(inner.params, init, update, inner.name + "+legs")
+
+
+# ---------------------------------------------------------------------------------------------
 # Names
 
 
@@ -541,12 +620,15 @@ CONFIGS = {
     "jpda": MultiTargetConfig(),
     "nn_jpda": MultiTargetConfig(tracker=dataclasses.replace(TRACKER, association="nn_jpda")),
     "kf": RobotFrameKFConfig(),
+    "pf+legs": LegTrackedConfig(ParticleConfig()),
+    "jpda+legs": LegTrackedConfig(MultiTargetConfig()),
     "truth": TruthConfig(),
 }
 """Each user estimator's one name and its default configuration."""
 
 _BUILDERS = {MultiTargetConfig: multi_target, ParticleConfig: particle_filter,
-             RobotFrameKFConfig: robot_frame_kf, TruthConfig: truth}
+             RobotFrameKFConfig: robot_frame_kf, TruthConfig: truth,
+             LegTrackedConfig: leg_tracked}
 
 
 def build(config) -> Estimator:
@@ -572,4 +654,6 @@ def with_sensors(config, sensors: str):
     _check_sensors(sensors)
     if isinstance(config, TruthConfig):
         return config
+    if isinstance(config, LegTrackedConfig):
+        return dataclasses.replace(config, estimator=with_sensors(config.estimator, sensors))
     return dataclasses.replace(config, sensors=sensors)

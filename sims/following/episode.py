@@ -90,7 +90,10 @@ class EpisodeConfig:
     @property
     def multi_target(self) -> bool:
         """Whether the estimator tracks everyone with identities (CLEAR MOT is scored)."""
-        return isinstance(self.estimator, user.MultiTargetConfig)
+        inner = self.estimator
+        if isinstance(inner, user.LegTrackedConfig):
+            inner = inner.estimator
+        return isinstance(inner, user.MultiTargetConfig)
 
     def __post_init__(self):
         if 1 + self.distractors > self.scene.num_people:

@@ -52,15 +52,21 @@ def estimator_config(name: str, sensors: str = "both", particles: int = 256,
     from jaxtrack.tracking import user
 
     user.build(name)  # a clear error for an unknown name
-    config = user.with_sensors(user.CONFIGS[name], sensors)
-    if isinstance(config, user.ParticleConfig):
-        config = dataclasses.replace(config, pf=dataclasses.replace(config.pf,
-                                                                    num_particles=particles))
-    if appearance:
-        if not isinstance(config, user.MultiTargetConfig):
-            raise ValueError(f"appearance applies to the multi-target estimators, not {name!r}")
-        config = dataclasses.replace(config, appearance=True)
-    return config
+
+    def configure(config):
+        if isinstance(config, user.LegTrackedConfig):
+            return dataclasses.replace(config, estimator=configure(config.estimator))
+        if isinstance(config, user.ParticleConfig):
+            config = dataclasses.replace(config, pf=dataclasses.replace(
+                config.pf, num_particles=particles))
+        if appearance:
+            if not isinstance(config, user.MultiTargetConfig):
+                raise ValueError("appearance applies to the multi-target estimators, not "
+                                 f"{name!r}")
+            config = dataclasses.replace(config, appearance=True)
+        return config
+
+    return configure(user.with_sensors(user.CONFIGS[name], sensors))
 
 
 def run_person_following(episodes: int = 256, estimator: str = "pf", follower: str = "A",

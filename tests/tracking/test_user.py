@@ -98,7 +98,8 @@ def test_run_is_the_update_loop_with_folded_keys():
 
 
 def test_names_have_one_spelling_and_bad_configurations_are_refused():
-    assert set(user.CONFIGS) == {"pf", "gnn", "jpda", "nn_jpda", "kf", "truth"}
+    assert set(user.CONFIGS) == {"pf", "gnn", "jpda", "nn_jpda", "kf", "truth", "pf+legs",
+                                 "jpda+legs"}
     for name, cfg in user.CONFIGS.items():
         assert user.build(name).name == name == user.build(cfg).name
     with pytest.raises(ValueError, match="estimator"):
@@ -110,9 +111,54 @@ def test_names_have_one_spelling_and_bad_configurations_are_refused():
     with pytest.raises(ValueError, match="sensors"):
         user.with_sensors(user.CONFIGS["pf"], "sonar")
     assert user.with_sensors(user.CONFIGS["kf"], "laser").sensors == "laser"
+    assert user.with_sensors(user.CONFIGS["pf+legs"], "rgbd").estimator.sensors == "rgbd"
+    with pytest.raises(TypeError, match="LegTrackedConfig.estimator"):
+        user.LegTrackedConfig(user.TruthConfig())
     # The appearance switch sets the tracker's feature length: one source.
     assert _multi(appearance=True).tracker_config.num_features == 3
     assert _multi().tracker_config.num_features == 0
+
+
+def test_leg_tracked_estimator_builds_laser_people_from_leg_tracks():
+    # The laser people of the scan are withheld (all masked); the leg candidates (two legs
+    # around each person) are given instead. The leg-tracked JPDA follows the user as well as
+    # the plain JPDA does on the people, and equals the plain JPDA fed with the leg tracker's
+    # people frame by frame.
+    from jaxtrack.tracking import leg_tracker
+
+    person, poses, laser, lm, rgbd, km = _scenario()
+    across = np.array([0.0, 0.15])
+    legs = np.concatenate([laser + across, laser - across], 1)          # [T, 4, 2]
+    legs_mask = np.concatenate([lm, lm], 1)
+    config = user.LegTrackedConfig(_multi("jpda"))
+    est, plain = user.build(config), user.build(config.estimator)
+    assert est.name == "jpda+legs"
+    params = est.params(laser_std=0.05)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    prior = user.Prior(f32(person[0]), f32(poses[0]))
+    s = est.init(jax.random.PRNGKey(0), params, prior)
+    sp, lt = plain.init(jax.random.PRNGKey(0), params, prior), leg_tracker.init(config.legs)
+    update, update_plain = jax.jit(est.update), jax.jit(plain.update)
+    step = jax.jit(lambda st, z: leg_tracker.step(config.legs, st, z.legs_xy, z.legs_mask,
+                                                  z.returns_xy, z.returns_mask, z.odom_pose,
+                                                  dt=DT, max_people=2))
+    errs = []
+    for t in range(T):
+        z = _sensed(f32(laser[t]), jnp.zeros(2, bool), f32(rgbd[t]), jnp.asarray(km[t]),
+                    jnp.zeros((2, 3)), f32(poses[t]), rate=0.2)
+        z = z._replace(legs_xy=f32(legs[t]), legs_mask=jnp.asarray(legs_mask[t]))
+        key = jax.random.fold_in(jax.random.PRNGKey(1), t)
+        s, e = update(key, s, z, params)
+        lt, people = step(lt, z)
+        sp, ep_ = update_plain(key, sp, z._replace(laser_xy=people.xy, laser_mask=people.mask),
+                               params)
+        np.testing.assert_allclose(e.user, ep_.user, rtol=1e-6, atol=1e-6)
+        errs.append(float(np.linalg.norm(np.asarray(e.user[:2]) - person[t])))
+    assert max(errs[10:]) < 0.3, errs
+    with pytest.raises(ValueError, match="leg candidates"):
+        est.update(key, s, _sensed(f32(laser[0]), jnp.asarray(lm[0]), f32(rgbd[0]),
+                                   jnp.asarray(km[0]), jnp.zeros((2, 3)), f32(poses[0])),
+                   params)
 
 
 def test_truth_needs_the_true_user():
