@@ -96,6 +96,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="geometry_msgs/PoseArray or people_msgs/PositionMeasurementArray "
                           "topic (robot frame)")
     trk.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic")
+    trk.add_argument("--pan-topic", default=None,
+                     help="sensor_msgs/JointState topic of the RGB-D camera's pan unit")
+    trk.add_argument("--pan-joint", default="camera_pan", help="the pan joint's name")
     trk.add_argument("--estimator", choices=tuple(e for e in estimators if e != "truth"),
                      default="gnn")
     trk.add_argument("--chunk", type=int, default=64, help="frames per compiled scan")
@@ -127,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
                       detections_topic=args.detections_topic, odom_topic=args.odom_topic,
                       estimator=args.estimator, chunk=args.chunk,
                       max_detections=args.max_detections, seed=args.seed,
-                      time_source=args.time_source, static_points=args.static_points)
+                      time_source=args.time_source, static_points=args.static_points,
+                      pan_topic=args.pan_topic, pan_joint=args.pan_joint)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         except ImportError as err:

@@ -11,6 +11,8 @@ seconds.
 - `read_depth`: ``sensor_msgs/Image`` depth (16UC1 millimetres or 32FC1 metres) ->
   `DepthImages` in metres.
 - `read_odometry`: ``nav_msgs/Odometry`` -> `Odometry` (x, y, yaw) and (vx, vy, wz).
+- `read_joint_states`: ``sensor_msgs/JointState`` -> `JointStates` (e.g. a camera's pan
+  angle), the named joints' positions [T, J].
 - `read_detections`: ``geometry_msgs/PoseArray`` or ``people_msgs/PositionMeasurementArray``
   (`register_people_msgs`) -> `PersonDetections` [T, M, 2] with a mask.
 - `resample`: streams onto a common fixed-rate clock (buckets or nearest sample), with a mask
@@ -46,14 +48,16 @@ import numpy as np
 
 __all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagReport",
            "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry",
-           "read_detections", "resample", "register_people_msgs", "write_bag", "topics",
-           "beam_angles",
-           "LASER_SCAN", "IMAGE", "ODOMETRY", "POSE_ARRAY", "POSITION_MEASUREMENT_ARRAY"]
+           "read_detections", "JointStates", "read_joint_states", "resample",
+           "register_people_msgs", "write_bag", "topics", "beam_angles",
+           "LASER_SCAN", "IMAGE", "ODOMETRY", "POSE_ARRAY", "POSITION_MEASUREMENT_ARRAY",
+           "JOINT_STATE"]
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 IMAGE = "sensor_msgs/msg/Image"
 ODOMETRY = "nav_msgs/msg/Odometry"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
+JOINT_STATE = "sensor_msgs/msg/JointState"
 POSITION_MEASUREMENT_ARRAY = "people_msgs/msg/PositionMeasurementArray"
 POSITION_MEASUREMENT = "people_msgs/msg/PositionMeasurement"
 
@@ -166,6 +170,23 @@ class Odometry(NamedTuple):
     times: np.ndarray
     pose: np.ndarray
     twist: np.ndarray
+    valid: np.ndarray
+    report: BagReport | None = None
+
+
+class JointStates(NamedTuple):
+    """Joint positions of one topic (float64), for the joints asked for.
+
+    Attributes:
+      times: [T] seconds.
+      names: the J joint names, in column order.
+      position: [T, J] positions (rad or m; NaN where a message lacks the joint).
+      valid: [T] bool; report: `BagReport`.
+    """
+
+    times: np.ndarray
+    names: tuple
+    position: np.ndarray
     valid: np.ndarray
     report: BagReport | None = None
 
@@ -311,6 +332,34 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
         return out
     grid, valid, (pose, twist) = resample(times, pose, twist, rate=rate, method=method)
     return out._replace(times=grid, pose=pose, twist=twist, valid=valid)
+
+
+def read_joint_states(path, topic: str, names=None, *, rate: float | None = None,
+                      method: str = "nearest", time_source: str = "header",
+                      typestore=None) -> JointStates:
+    """Read ``sensor_msgs/JointState`` positions of the joints ``names`` (default: those of the
+    first message), by name in every message.
+
+    Example:
+      >>> pan = read_joint_states("run.bag", "/camera/joint_states", ["camera_pan"])
+      >>> pan.position[:, 0]                           # [T] rad
+    """
+    msgs, report = _read_topic(path, topic, (JOINT_STATE,), time_source, typestore)
+    if not msgs:
+        raise BagError(f"no readable {JOINT_STATE} message on {topic!r} in {path}")
+    names = tuple(msgs[0][1].name) if names is None else tuple(names)
+    pos = np.full((len(msgs), len(names)), np.nan)
+    for i, (_, m) in enumerate(msgs):
+        index = {n: k for k, n in enumerate(m.name)}
+        for j, n in enumerate(names):
+            if n in index and index[n] < len(m.position):
+                pos[i, j] = m.position[index[n]]
+    times = np.array([t for t, _ in msgs], np.float64)
+    out = JointStates(times, names, pos, np.ones(len(msgs), bool), report)
+    if rate is None:
+        return out
+    grid, valid, (pos,) = resample(times, pos, rate=rate, method=method)
+    return out._replace(times=grid, position=pos, valid=valid)
 
 
 def read_detections(path, topic: str, max_detections: int, *, rate: float | None = None,
@@ -479,7 +528,8 @@ def register_people_msgs(typestore):
 
 def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
               odometry: Odometry | None = None, detections: PersonDetections | None = None,
-              depth: DepthImages | None = None, topics: dict | None = None,
+              depth: DepthImages | None = None, joints: JointStates | None = None,
+              topics: dict | None = None,
               detections_type: str = POSE_ARRAY, depth_encoding: str = "32FC1",
               storage: str = "sqlite3", frames: dict | None = None, typestore=None,
               chunk_bytes: int | None = None, compression: str | None = None) -> Path:
@@ -492,9 +542,11 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     Args:
       path: new ``.bag`` file (version 1) or new directory (version 2); must not exist.
       version: 1 or 2.
-      laser, odometry, detections, depth: records to write (any subset, at least one).
+      laser, odometry, detections, depth, joints: records to write (any subset, at least
+        one); ``joints`` as ``sensor_msgs/JointState`` (e.g. the camera's pan angle).
       topics: topic names, default ``{"laser": "/scan", "odometry": "/odom",
-        "detections": "/people", "depth": "/camera/depth/image_raw"}``.
+        "detections": "/people", "depth": "/camera/depth/image_raw",
+        "joints": "/joint_states"}``.
       detections_type: `POSE_ARRAY` or `POSITION_MEASUREMENT_ARRAY`.
       depth_encoding: "32FC1" (metres) or "16UC1" (millimetres, rounded).
       storage: ROS 2 storage, "sqlite3" or "mcap".
@@ -524,11 +576,13 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
                          f"{compression!r} for version {version}")
     if depth_encoding not in ("32FC1", "16UC1"):
         raise BagError(f"depth encoding {depth_encoding!r} is not supported (32FC1, 16UC1)")
-    streams = {"laser": laser, "odometry": odometry, "detections": detections, "depth": depth}
+    streams = {"laser": laser, "odometry": odometry, "detections": detections, "depth": depth,
+               "joints": joints}
     if all(v is None for v in streams.values()):
-        raise ValueError("nothing to write: give laser, odometry, detections and/or depth")
+        raise ValueError("nothing to write: give laser, odometry, detections, depth and/or "
+                         "joints")
     names = {"laser": "/scan", "odometry": "/odom", "detections": "/people",
-             "depth": "/camera/depth/image_raw"}
+             "depth": "/camera/depth/image_raw", "joints": "/joint_states"}
     names.update(topics or {})
     fr = {"laser": "laser", "odom": "odom", "base": "base_link",
           "camera": "camera_depth_optical_frame"}
@@ -539,7 +593,7 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
         register_people_msgs(typestore)
     ts = typestore
     types = {"laser": LASER_SCAN, "odometry": ODOMETRY, "detections": detections_type,
-             "depth": IMAGE}
+             "depth": IMAGE, "joints": JOINT_STATE}
     for key, rec in streams.items():
         if rec is not None and types[key] not in ts.types:
             raise BagError(f"message type {types[key]} is not in the type store"
@@ -558,6 +612,9 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     if depth is not None:
         for t, m in _depth_messages(make, depth, depth_encoding, fr["camera"]):
             messages.append((t, "depth", m))
+    if joints is not None:
+        for t, m in _joint_messages(make, joints, fr["base"]):
+            messages.append((t, "joints", m))
     messages.sort(key=lambda x: x[0])
     if version == 1:
         from rosbags.rosbag1 import Writer
@@ -636,6 +693,17 @@ def _laser_messages(make, rec: LaserScans, frame_id):
                     time_increment=0.0, scan_time=dt, range_min=float(rec.range_min),
                     range_max=float(rec.range_max), ranges=ranges,
                     intensities=np.zeros(0, np.float32))
+
+
+def _joint_messages(make, rec: JointStates, frame_id):
+    JS = make.T[JOINT_STATE]
+    names = [str(n) for n in rec.names]
+    empty = np.zeros(0, np.float64)
+    for seq, i in enumerate(_rows(rec)):
+        t = _ns(rec.times[i])
+        yield t, JS(header=make.header(t, frame_id, seq), name=names,
+                    position=np.asarray(rec.position[i], np.float64), velocity=empty,
+                    effort=empty)
 
 
 def _odometry_messages(make, rec: Odometry, frame_id, child):

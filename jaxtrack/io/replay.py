@@ -62,6 +62,7 @@ class _Static(NamedTuple):
     estimator: object
     sensing: sensing.SensingConfig
     dt: float
+    pan: bool = False
 
 
 def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
@@ -69,7 +70,8 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
           chunk: int = 64, key: Array | None = None, user_xy=None, params=None,
           leg_params: legs.LegParams = legs.LegParams(), laser_mount=(0.0, 0.0),
           max_segments: int = 48, max_laser_people: int = 8, static_xy=None,
-          static_radius: float = 0.3, dtype=jnp.float32, progress: bool = True,
+          static_radius: float = 0.3, pan: bags.JointStates | None = None,
+          pan_joint: str = "camera_pan", dtype=jnp.float32, progress: bool = True,
           stream=None) -> Tracks:
     """Run the sensing step and a user estimator over recorded scans, ``chunk`` frames at a time.
 
@@ -89,6 +91,9 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
       static_xy: [F, 2] known leg-like fixed objects (table and chair legs) in the odometry
         frame, from a map: laser people within ``static_radius`` of one are dropped (furniture
         legs 0.3-0.5 m apart do look like a person's legs).
+      pan: `bags.JointStates` holding the RGB-D camera's pan angle (joint ``pan_joint``,
+        relative to the robot's heading), or None (the camera looks ahead): the nearest
+        message to each scan turns the camera's field of view (`sensing.Sensed.camera_pan`).
       progress: print a progress bar to ``stream`` (stderr).
 
     Returns:
@@ -137,6 +142,16 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         dmask = np.asarray(detections.mask, bool)[dv][np.maximum(di, 0)] & (di >= 0)[:, None]
     else:
         dxy, dmask = np.zeros((T, 1, 2)), np.zeros((T, 1), bool)
+    if pan is not None:
+        if pan_joint not in tuple(pan.names):
+            raise ValueError(f"no joint {pan_joint!r} in the joint states {tuple(pan.names)}")
+        pv = np.asarray(pan.valid, bool)
+        pi = _align(np.asarray(pan.times)[pv], times, np.inf)
+        pan_angle = np.asarray(pan.position)[pv][pi, list(pan.names).index(pan_joint)]
+        if not np.all(np.isfinite(pan_angle)):
+            raise ValueError(f"joint {pan_joint!r} has no position in some joint states")
+    else:
+        pan_angle = np.zeros(T)
     if params is None:
         params = est.params(dt=dt, dtype=dtype)
     key = jax.random.PRNGKey(0) if key is None else key
@@ -146,7 +161,7 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     static_xy = np.zeros((0, 2)) if static_xy is None else np.asarray(static_xy, np.float64)
     if static_xy.ndim != 2 or static_xy.shape[1] != 2:
         raise ValueError(f"static_xy must be [F, 2]; got shape {static_xy.shape}")
-    static = _Static(config, scfg, dt)
+    static = _Static(config, scfg, dt, pan is not None)
     ranges = np.where(np.isfinite(ranges), ranges, leg_params.max_range).astype(np_dtype)
     if user_xy is None:
         user_xy = _first_user(ranges[0], angles.astype(np_dtype), pose[0], scfg)
@@ -164,7 +179,8 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         sl = np.minimum(idx, T - 1)
         xs = (jnp.asarray(ranges[sl]), jnp.asarray(pose[sl], dtype),
               jnp.asarray(dxy[sl], dtype), jnp.asarray(dmask[sl] & (idx < T)[:, None]),
-              jnp.asarray(idx < T), jnp.asarray(idx, jnp.int32))
+              jnp.asarray(pan_angle[sl], dtype), jnp.asarray(idx < T),
+              jnp.asarray(idx, jnp.int32))
         carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype), static_map)
         outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
         if progress:
@@ -210,11 +226,13 @@ def _chunk_runner(static: _Static, chunk: int):
 
         def frame(c, x):
             est_state, sensing_state, prev_pose = c
-            ranges, pose, dxy, dmask, valid, index = x
+            ranges, pose, dxy, dmask, pan, valid, index = x
             odometry = sensing.Odometry(pose, geometry.relative(prev_pose, pose))
             new_sensing, sensed = sensing.sense(
                 static.sensing, sensing_state, ranges, angles, odometry, dxy, dmask, None,
                 static_map, map_pose=pose, period=dt)
+            if static.pan:
+                sensed = sensed._replace(camera_pan=pan)
             new_est, e = est.update(jax.random.fold_in(key, index), est_state, sensed, params)
             new = jax.tree_util.tree_map(lambda a, b: jnp.where(valid, a, b),
                                          (new_est, new_sensing, pose), c)
@@ -238,11 +256,13 @@ def _bar(done, total, seconds, stream=None):
 def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,
               odom_topic: str | None = None, estimator: str = "gnn", chunk: int = 64,
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
-              static_points=None, stream=sys.stdout) -> dict:
+              static_points=None, pan_topic: str | None = None,
+              pan_joint: str = "camera_pan", stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
-    (`track`'s ``static_xy``).
+    (`track`'s ``static_xy``). ``pan_topic``: ``sensor_msgs/JointState`` of the camera's
+    pan unit (joint ``pan_joint``).
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -259,11 +279,13 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
             if odom_topic else None)
     det = (bags.read_detections(bag, detections_topic, max_detections, time_source=time_source)
            if detections_topic else None)
+    pan = (bags.read_joint_states(bag, pan_topic, [pan_joint], time_source=time_source)
+           if pan_topic else None)
     static_xy = (np.loadtxt(static_points, ndmin=2).reshape(-1, 2)
                  if static_points is not None else None)
     t0 = time.perf_counter()
     tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed),
-                   static_xy=static_xy)
+                   static_xy=static_xy, pan=pan, pan_joint=pan_joint)
     seconds = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -271,7 +293,7 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     rows = trajectories.write_mot_csv(csv, tracks.frames, tracks.ids, tracks.pos, tracks.mask)
     plot = out / "top_view.png"
     write_top_view(plot, tracks, odom, title=f"{Path(bag).name}: {estimator}")
-    reports = [r.report for r in (laser, odom, det) if r is not None]
+    reports = [r.report for r in (laser, odom, det, pan) if r is not None]
     n_ids = len(np.unique(tracks.ids[tracks.mask])) if tracks.mask.any() else 0
     print(f"{len(tracks.frames)} frames ({tracks.times[-1] - tracks.times[0]:.1f} s) replayed "
           f"with {estimator} in {seconds:.1f} s (compilation included): {n_ids} track ids, "

@@ -657,12 +657,13 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
     A present detection starts a track when no track used it, it lies outside every live gate
     (it would be explained by that track, even unassigned, and a duplicate would compete with
     it; unless ``births_in_gates``) and its detector confidence is at least
-    ``birth_confidence`` (seed 001); with ``merge_distance > 0`` one closer than that to an earlier eligible detection (lower index)
-    starts none. The i-th eligible detection (i = 0, 1, ...) takes the i-th free slot, if there
-    is one (else it is counted in ``num_dropped``), with id ``next_id + i``: ids are unique and
-    increasing. A new track has mean :math:`[z, 0, 0]`, covariance
-    :math:`\mathrm{diag}(R_s, \sigma_v^2 I)` (:math:`\sigma_v` = ``exp(log_init_speed_std)``),
-    one hit, and status `TENTATIVE` (`CONFIRMED` when ``confirm_hits`` is 1).
+    ``birth_confidence`` (seed 001); with ``merge_distance > 0`` one closer than that to an
+    earlier eligible detection (lower index) starts none. The i-th eligible detection
+    (i = 0, 1, ...) takes the i-th free slot, if there is one (else it is counted in
+    ``num_dropped``), with id ``next_id + i``: ids are unique and increasing. A new track has
+    mean :math:`[z, 0, 0]`, covariance :math:`\mathrm{diag}(R_s, \sigma_v^2 I)`
+    (:math:`\sigma_v` = ``exp(log_init_speed_std)``), one hit, and status `TENTATIVE`
+    (`CONFIRMED` when ``confirm_hits`` is 1).
 
     Args:
       tracks: `Tracks` after `manage`.

@@ -8,7 +8,8 @@ true robot and people for evaluation. The people walk as in `sims.following.pede
 robot follows the true user with a simple proportional law (speed from the distance error to
 ``follow_distance``, turn rate from the bearing), so no estimator is in the loop. `to_records`
 turns a recording into the `jaxtrack.io.bags` records that `jaxtrack.io.bags.write_bag` writes
-and `jaxtrack.io.replay.track` replays.
+and `jaxtrack.io.replay.track` replays; with the camera on a pan unit, `pan_record` is its
+angle as a joint state.
 
 Example:
   >>> rec = record(jax.random.PRNGKey(0), duration=3.0)
@@ -26,12 +27,13 @@ import numpy as np
 
 from jaxtrack import geometry
 from jaxtrack.angles import wrap
+from jaxtrack.control import pan_tilt
 from jaxtrack.io import bags
 from sims.following import lidar, pedestrians, world
 
 Array = jax.Array
 
-__all__ = ["Recording", "make_recorder", "record", "to_records"]
+__all__ = ["Recording", "make_recorder", "record", "to_records", "pan_record"]
 
 
 class Recording(NamedTuple):
@@ -45,6 +47,8 @@ class Recording(NamedTuple):
       det_xy: [T, M, 2] RGB-D person detections in the robot frame; det_mask: [T, M].
       robot: [T, 3] true robot pose; people: [T, P, 2] true people; people_mask: [T, P]
         (person 0 is the user).
+      pan: [T] the RGB-D camera's pan angle relative to the robot (rad) when it sits on a pan
+        unit, else None.
     """
 
     times: Array
@@ -57,18 +61,20 @@ class Recording(NamedTuple):
     robot: Array
     people: Array
     people_mask: Array
+    pan: Array | None = None
 
 
 def make_recorder(scene, *, distractors: int = 3, duration: float = 3.0, dt: float = 0.1,
                   sensors: world.SensorsConfig = world.SensorsConfig(),
                   follow_distance: float = 1.2, max_speed: float = 1.0, max_turn: float = 1.5,
-                  dtype=jnp.float32):
+                  pan: pan_tilt.PanTiltConfig | None = None, dtype=jnp.float32):
     """Build ``record(key) -> Recording`` (jittable) for a `sims.following.scene.Scene`.
 
     The robot's command each frame: :math:`v = \\operatorname{clip}(0.8 (d - d_f), 0,
     v_{max})`, :math:`\\omega = \\operatorname{clip}(1.5\\,\\beta, \\pm\\omega_{max})` with
     :math:`d`, :math:`\\beta` the true user's distance and bearing; the pose is integrated
-    exactly for the frame.
+    exactly for the frame. With ``pan``, the RGB-D camera sits on that pan unit, servoed to the
+    true user's bearing (`jaxtrack.control.pan_tilt.servo`), and its angle is recorded.
 
     Example:
       >>> rec = jax.jit(make_recorder(scene.build(num_people=4)))(jax.random.PRNGKey(0))
@@ -92,7 +98,7 @@ def make_recorder(scene, *, distractors: int = 3, duration: float = 3.0, dt: flo
         colours = jax.random.uniform(k_col, (P, 3), dtype)
 
         def frame(c, k):
-            people, pose, odom = c
+            people, pose, odom, unit = c
             ks = jax.random.split(k, 4)
             rel = geometry.to_frame(pose, people.pos[0])
             dist = jnp.sqrt(jnp.sum(rel**2))
@@ -101,13 +107,20 @@ def make_recorder(scene, *, distractors: int = 3, duration: float = 3.0, dt: flo
             w = jnp.clip(1.5 * bearing, -max_turn, max_turn)
             people = pedestrians.step(ks[0], pcfg, people, pose, dt)
             new_pose = _unicycle(pose, v, w, dt)
-            obs = world.observe(ks[1:], sensors, scene, laser, pose, new_pose, people, colours)
+            angle = None
+            if pan is not None:
+                ahead = geometry.to_frame(new_pose, people.pos[0])
+                unit = pan_tilt.servo(pan, unit, jnp.arctan2(ahead[1], ahead[0]), dt)
+                angle = unit.angle
+            obs = world.observe(ks[1:], sensors, scene, laser, pose, new_pose, people, colours,
+                                angle)
             new_odom = geometry.compose(odom, obs.increment)
             out = (obs.ranges, new_odom, obs.increment / dt, obs.rgbd.xy, obs.rgbd.mask,
-                   new_pose, people.pos, people.mask)
-            return (people, new_pose, new_odom), out
+                   new_pose, people.pos, people.mask, angle)
+            return (people, new_pose, new_odom, unit), out
 
-        _, out = jax.lax.scan(frame, (people, pose0, pose0), jax.random.split(k_run, T))
+        _, out = jax.lax.scan(frame, (people, pose0, pose0, pan_tilt.init(dtype)),
+                              jax.random.split(k_run, T))
         times = dt * jnp.arange(1, T + 1, dtype=jnp.float64 if jax.config.jax_enable_x64
                                 else jnp.float32)
         return Recording(times, out[0], laser.angles, *out[1:])
@@ -130,7 +143,7 @@ def record(key: Array, scene=None, **kw) -> Recording:
 
         scene = scene_mod.build(num_people=4)
     rec = jax.jit(make_recorder(scene, **kw))(key)
-    return Recording(*(np.asarray(x) for x in rec))
+    return Recording(*(None if x is None else np.asarray(x) for x in rec))
 
 
 def to_records(rec: Recording, laser: lidar.LaserConfig = lidar.LaserConfig()):
@@ -159,6 +172,22 @@ def to_records(rec: Recording, laser: lidar.LaserConfig = lidar.LaserConfig()):
     det = bags.PersonDetections(times, np.where(dmask[..., None], rec.det_xy, 0.0)
                                 .astype(np.float64), dmask, np.ones(T, bool))
     return scans, odom, det
+
+
+def pan_record(rec: Recording, joint: str = "camera_pan") -> bags.JointStates:
+    """The camera's pan angle of a recording as the `jaxtrack.io.bags.JointStates` that
+    ``write_bag(..., joints=)`` writes as ``sensor_msgs/JointState`` (one joint, ``joint``).
+
+    Example:
+      >>> rec = record(jax.random.PRNGKey(0), pan=pan_tilt.PanTiltConfig())
+      >>> bags.write_bag("sim.bag", 1, **dict(zip(("laser", "odometry", "detections"),
+      ...                to_records(rec))), joints=pan_record(rec))
+    """
+    if rec.pan is None:
+        raise ValueError("the recording has no pan angle (record it with pan=PanTiltConfig())")
+    times = np.asarray(rec.times, np.float64)
+    return bags.JointStates(times, (joint,), np.asarray(rec.pan, np.float64)[:, None],
+                            np.ones(times.shape[0], bool))
 
 
 def _unicycle(pose, v, w, dt):

@@ -39,6 +39,13 @@ def _records(seed=0):
     return laser, odom, det, depth
 
 
+def _joints(seed=1):
+    rng = np.random.default_rng(seed)
+    times = 1.7e9 + 0.1 * np.arange(T) + 0.03
+    return bags.JointStates(times, ("camera_pan", "camera_tilt"),
+                            rng.uniform(-2.6, 2.6, (T, 2)), np.ones(T, bool))
+
+
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
     root = tmp_path_factory.mktemp("bags")
@@ -48,9 +55,27 @@ def written(tmp_path_factory):
         p = root / (f"{name}.bag" if version == 1 else name)
         # Small ROS 1 chunks: the truncation test then cuts between and inside chunks.
         bags.write_bag(p, version, laser=recs[0], odometry=recs[1], detections=recs[2],
-                       depth=recs[3], storage=storage, chunk_bytes=4096)
+                       depth=recs[3], joints=_joints(), storage=storage, chunk_bytes=4096)
         paths[name] = p
     return recs, paths
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_joint_states_roundtrip_by_name(written, kind):
+    _, paths = written
+    want = _joints()
+    got = bags.read_joint_states(paths[kind], "/joint_states")
+    assert got.names == want.names
+    np.testing.assert_array_equal(got.position, want.position)        # float64 exactly
+    np.testing.assert_allclose(got.times, want.times, rtol=0, atol=1e-6)
+    # By name, in the order asked for; a joint no message has is NaN.
+    tilt = bags.read_joint_states(paths[kind], "/joint_states", ["camera_tilt", "wheel"])
+    np.testing.assert_array_equal(tilt.position[:, 0], want.position[:, 1])
+    assert np.all(np.isnan(tilt.position[:, 1]))
+    on_grid = bags.read_joint_states(paths[kind], "/joint_states", rate=10.0)
+    assert on_grid.position.shape[1] == 2 and on_grid.valid.any()
+    with pytest.raises(bags.BagError):
+        bags.read_joint_states(paths[kind], "/odom")
 
 
 @pytest.mark.parametrize("kind", [k[0] for k in KINDS])
@@ -83,7 +108,8 @@ def test_topics_and_errors(written):
     _, paths = written
     p = paths["ros1"]
     assert bags.topics(p) == {"/scan": bags.LASER_SCAN, "/odom": bags.ODOMETRY,
-                              "/people": bags.POSE_ARRAY, DEPTH: bags.IMAGE}
+                              "/people": bags.POSE_ARRAY, DEPTH: bags.IMAGE,
+                              "/joint_states": bags.JOINT_STATE}
     with pytest.raises(bags.BagError, match=r"'/nope'.*topics present: .*/odom .*/scan"):
         bags.read_laser(p, "/nope")
     with pytest.raises(bags.BagError, match="carries nav_msgs/msg/Odometry"):

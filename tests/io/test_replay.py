@@ -234,3 +234,40 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(recording, writt
     assert res.returncode == 0, res.stderr[-3000:]
     assert "no mujoco" in res.stdout
     assert (out / "tracks.csv").stat().st_size > 0
+
+
+def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(tmp_path):
+    # A recording with the RGB-D camera on the pan unit, the robot not turning, so that the
+    # camera has to turn to keep the user (their bearing sweeps 1.5 rad in 2 s): its angle is recorded (within the unit's
+    # limits, on the user's bearing), written into the bag as sensor_msgs/JointState,
+    # read back exactly, and the replayed PF's camera field of view turns with it: the output
+    # with the pan differs from the one with the camera assumed straight ahead, and equals the
+    # in-memory replay.
+    from jaxtrack.control import pan_tilt
+    from sims.following import recording as rec_mod
+    from sims.following import scene
+
+    unit = pan_tilt.PanTiltConfig()
+    rec = rec_mod.record(jax.random.PRNGKey(0), scene.build(num_people=3), distractors=2,
+                         duration=2.0, pan=unit, max_turn=0.0)
+    assert rec.pan.shape == (20,) and np.all(np.abs(rec.pan) <= unit.limit)
+    rel = jax.vmap(geometry.to_frame)(jnp.asarray(rec.robot), jnp.asarray(rec.people[:, 0]))
+    bearing = np.arctan2(rel[:, 1], rel[:, 0])
+    assert np.ptp(rec.pan) > 1.0
+    # The servo lags by about its rate over its gain (here < 0.3 rad).
+    assert np.max(np.abs(rec.pan - bearing)) < 0.3
+    laser, odom, det = rec_mod.to_records(rec)
+    joints = rec_mod.pan_record(rec)
+    path = tmp_path / "pan.bag"
+    bags.write_bag(path, 1, laser=laser, odometry=odom, detections=det, joints=joints)
+    back = bags.read_joint_states(path, "/joint_states")
+    np.testing.assert_array_equal(back.position[:, 0], rec.pan)
+    with_pan = replay.track(laser, odom, det, "pf", pan=joints, progress=False, chunk=CHUNK)
+    again = replay.track(laser, odom, det, "pf", pan=back, progress=False, chunk=CHUNK)
+    ahead = replay.track(laser, odom, det, "pf", progress=False, chunk=CHUNK)
+    np.testing.assert_array_equal(with_pan.user, again.user)
+    assert not np.array_equal(with_pan.user, ahead.user)
+    with pytest.raises(ValueError, match="no joint"):
+        replay.track(laser, odom, det, "pf", pan=joints, pan_joint="tilt", progress=False)
+    with pytest.raises(ValueError, match="no pan angle"):
+        rec_mod.pan_record(rec._replace(pan=None))
