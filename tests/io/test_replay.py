@@ -238,8 +238,9 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(recording, writt
 
 def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(tmp_path):
     # A recording with the RGB-D camera on the pan unit, the robot not turning, so that the
-    # camera has to turn to keep the user (their bearing sweeps 1.5 rad in 2 s): its angle is recorded (within the unit's
-    # limits, on the user's bearing), written into the bag as sensor_msgs/JointState,
+    # camera has to turn to keep the user (their bearing sweeps 1.5 rad in 2 s): its angle is
+    # recorded (within the unit's limits, on the user's bearing), written into the bag as
+    # sensor_msgs/JointState,
     # read back exactly, and the replayed PF's camera field of view turns with it: the output
     # with the pan differs from the one with the camera assumed straight ahead, and equals the
     # in-memory replay.
