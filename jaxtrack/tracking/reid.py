@@ -81,8 +81,9 @@ class ReidState(NamedTuple):
 
 
 def init(config: ReidConfig, colour: Array, ids: Array, user_slot: int = 0) -> ReidState:
-    """The user, of colour feature ``colour`` [3], is the track in ``user_slot`` (saturated
-    log-odds); ``ids`` [K] are the tracks' ids."""
+    """The user, of colour feature ``colour`` [3] (NaN: not known, and no colour gives
+    evidence), is the track in ``user_slot`` (saturated log-odds); ``ids`` [K] are the tracks'
+    ids."""
     dtype = colour.dtype
     K = ids.shape[0]
     return ReidState(colour, jnp.zeros(K, dtype).at[user_slot].set(config.logodds_max), ids)
@@ -99,9 +100,12 @@ def evidence(config: ReidConfig, state: ReidState, positions: Array, live: Array
     """
     dtype = positions.dtype
     s2 = colour_std**2
-    dc = jnp.sum((rgbd_colour.astype(dtype) - state.colour) ** 2, -1)
+    known = jnp.all(jnp.isfinite(state.colour))
+    colour = jnp.where(known, state.colour, 0.0)  # no NaN in the gradient's unused branch
+    dc = jnp.sum((rgbd_colour.astype(dtype) - colour) ** 2, -1)
     llr = -0.5 * dc / s2 - 1.5 * jnp.log(2.0 * jnp.pi * s2)
-    llr = jnp.clip(llr, *config.evidence)
+    # No colour shown (NaN): no evidence either way.
+    llr = jnp.where(known, jnp.clip(llr, *config.evidence), 0.0)
     d2 = jnp.sum((rgbd_xy[:, None, :] - positions[None, :, :]) ** 2, -1)   # [M, K]
     d2 = jnp.where(live[None], d2, jnp.inf)
     first = jnp.argmin(d2, 1)
