@@ -226,6 +226,44 @@ def test_colour_reidentifies_the_user(kind):
     assert results[False][-8:].min() > 0.5, results[False]
 
 
+def test_the_particle_filter_tracks_its_clusters_and_reidentifies_the_user():
+    # Seed 004's PF with its default user selection (a tracker over the clusters, with the
+    # colour): on the swap scenario it ends on the user; choosing the cluster nearest to the
+    # user's own prediction takes the distractor, as the colour-blind tracker does.
+    person, laser, lm, rgbd, km, colours, shown = _swap()
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    ends = {}
+    for selection in ("tracked", "nearest"):
+        est = user.build(dataclasses.replace(_config("pf"), selection=selection))
+        params = est.params(laser_std=0.05, rgbd_std=0.1)
+        state = est.init(jax.random.PRNGKey(0), params,
+                         user.Prior(f32(person[0]), jnp.zeros(3, jnp.float32), f32(shown)))
+        zs = jax.vmap(lambda lx, lmk, kx, kmk, col: _sensed(lx, lmk, kx, kmk, col,
+                                                            jnp.zeros(3, jnp.float32)))(
+            f32(laser), jnp.asarray(lm), f32(rgbd), jnp.asarray(km), f32(colours))
+        _, e = jax.jit(lambda s, z: estimator.run(est, jax.random.PRNGKey(1), s, z, params))(
+            state, zs)
+        ends[selection] = np.linalg.norm(np.asarray(e.user)[-8:, :2] - person[-8:], axis=1)
+    assert ends["tracked"].max() < 0.3, ends
+    assert ends["nearest"].min() > 0.5, ends
+
+
+def test_no_colour_shown_gives_no_colour_evidence():
+    cfg = reid.ReidConfig()
+    xy = jnp.array([[1.0, 0.0], [3.0, 0.0]])
+    det = jnp.array([[1.05, 0.0]])
+    col = jnp.array([[0.9, 0.1, 0.1]])
+    known = reid.init(cfg, jnp.array([0.9, 0.1, 0.1]), jnp.arange(2))
+    unknown = reid.init(cfg, jnp.full(3, jnp.nan), jnp.arange(2))
+    e = reid.evidence(cfg, known, xy, jnp.ones(2, bool), det, col, jnp.ones(1, bool), 0.1)
+    assert float(e[0]) > 1.0 and float(e[1]) == 0.0
+    e = reid.evidence(cfg, unknown, xy, jnp.ones(2, bool), det, col, jnp.ones(1, bool), 0.1)
+    np.testing.assert_array_equal(e, [0.0, 0.0])
+    g = jax.grad(lambda s: reid.evidence(cfg, unknown, xy, jnp.ones(2, bool), det, col,
+                                         jnp.ones(1, bool), s).sum())(0.1)
+    assert np.isfinite(float(g))
+
+
 def _known_distractor(seed=0, T2=80):
     """A distractor shows its colour for 1 s, then the camera sees nobody; 4 s later the user
     vanishes (behind something) and the distractor walks through where they were, on to 1 m
