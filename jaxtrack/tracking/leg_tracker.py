@@ -59,6 +59,9 @@ class LegTrackerConfig:
 
     Attributes:
       capacity: leg track slots.
+      max_candidates: at most this many leg candidates of a scan, the nearest to the robot,
+        are associated (the assignment's cost grows with their number; a scan of the shop
+        holds about 13).
       q: acceleration spectral density of a leg (m^2/s^3): a swinging leg goes from rest to
         about twice the walking speed within a third of a second.
       r_std: leg detection noise std (m).
@@ -81,6 +84,7 @@ class LegTrackerConfig:
     """
 
     capacity: int = 16
+    max_candidates: int = 24
     q: float = 8.0
     r_std: float = 0.05
     gate_prob: float = 0.999
@@ -98,8 +102,9 @@ class LegTrackerConfig:
     single_legs: bool = True
 
     def __post_init__(self):
-        if self.capacity < 1:
-            raise ValueError(f"capacity must be >= 1; got {self.capacity}")
+        if self.capacity < 1 or self.max_candidates < 1:
+            raise ValueError(f"capacity and max_candidates must be >= 1; got {self.capacity}, "
+                             f"{self.max_candidates}")
         if min(self.q, self.r_std, self.max_position_std, self.pair_distance) <= 0:
             raise ValueError("q, r_std, max_position_std and pair_distance must be > 0")
         if not 0 < self.gate_prob < 1:
@@ -193,14 +198,20 @@ def step(config: LegTrackerConfig, state: LegTrackerState, legs_xy: Array, legs_
         raise ValueError(f"max_people must be >= 1; got {max_people}")
     dtype = state.tracks.mean.dtype
     params = config.params(dt, dtype)
-    S = legs_xy.shape[0]
-    det = tracker.Detections(jnp.asarray(legs_xy, dtype), jnp.asarray(legs_mask, bool),
-                             jnp.zeros(S, jnp.int32), jnp.ones(S, dtype), jnp.zeros((S, 0), dtype))
+    pose = jnp.asarray(robot_pose, dtype)
+    xy = jnp.asarray(legs_xy, dtype)
+    mask = jnp.asarray(legs_mask, bool)
+    if xy.shape[0] > config.max_candidates:
+        d2 = jnp.where(mask, jnp.sum((xy - pose[:2]) ** 2, -1), jnp.inf)
+        keep = jnp.argsort(d2)[:config.max_candidates]
+        xy, mask = xy[keep], mask[keep]
+    S = xy.shape[0]
+    det = tracker.Detections(xy, mask, jnp.zeros(S, jnp.int32), jnp.ones(S, dtype),
+                             jnp.zeros((S, 0), dtype))
     tr = state.tracks
     predicted = tracker.predict(tr, params)
     hyp = tracker.hypothesise(tr, predicted, det, params)
     assoc = tracker.associate_gnn(hyp, params)
-    pose = jnp.asarray(robot_pose, dtype)
     in_robot = geometry.to_frame(pose, predicted.mean[:, :2])
     hidden = hyp.live & ~assoc.hit & occluded(
         in_robot, jnp.asarray(returns_xy, dtype), jnp.asarray(returns_mask, bool),

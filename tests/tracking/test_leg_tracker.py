@@ -230,3 +230,13 @@ def test_bad_input_raises():
         leg_tracker.LegTrackerConfig(pair_distance=0.0)
     with pytest.raises(ValueError, match="confirm"):
         leg_tracker.LegTrackerConfig(confirm_hits=4, confirm_window=3)
+
+
+def test_only_the_nearest_candidates_are_associated():
+    # Five legs in a row, three candidates allowed: the two farthest start no track.
+    config = leg_tracker.LegTrackerConfig(max_candidates=3, confirm_hits=1)
+    xy = jnp.array([[3.0, 0.0], [1.0, 0.0], [4.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
+    state, _ = leg_tracker.step(config, leg_tracker.init(config), xy, jnp.ones(5, bool),
+                                jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros(3), dt=DT)
+    live = np.asarray(state.tracks.status) != tracker.FREE
+    np.testing.assert_allclose(sorted(np.asarray(state.tracks.mean)[live, 0]), [1.0, 2.0, 3.0])
