@@ -329,8 +329,7 @@ class ParticleConfig:
       selection: how the user is chosen among the clusters (the seed leaves it open).
         "tracked" (default): motion continuity of everyone plus the RGB-D colour. Every
         cluster is a detection of a multi-target tracker (``clusters``, a `MultiTargetConfig`:
-        GNN over the clusters and the RGB-D detections, one track per person in a linear
-        Kalman filter (the UKF's moments with this model, for less work), the colour
+        GNN over the clusters and the RGB-D detections, one track per person, the colour
         re-identification of `reid`), and the user is the track the robot was shown, kept by
         id and re-identified by colour. When the user passes someone, both are predicted
         through the encounter; following only the user's own prediction, the nearest cluster
@@ -352,7 +351,7 @@ class ParticleConfig:
     colour: bool = False
     selection: str = "tracked"
     clusters: MultiTargetConfig = MultiTargetConfig(
-        tracker=dataclasses.replace(TRACKER, association="gnn", filter="kf"), appearance=True)
+        tracker=dataclasses.replace(TRACKER, association="gnn"), appearance=True)
 
     def __post_init__(self):
         _check_sensors(self.sensors)
