@@ -272,7 +272,7 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
       max_people: static capacity P.
       prev_legs: optional previous-frame legs, same frame of reference.
       compatible: optional [S, S] bools, a further condition on the pairs (e.g. the motion
-        cue of tracked legs' velocities, `jaxtrack.perception.leg_tracker`).
+        cue of tracked legs' velocities, `jaxtrack.tracking.leg_tracker`).
 
     Returns:
       `People`.

@@ -87,12 +87,8 @@ class PeoplePFConfig:
       min_cluster_weight: a cluster lighter than this is not a person estimate.
       gate: a cluster farther than this (m) from the predicted target is not the target (by
         motion continuity alone).
-      reacquire_speed, max_gate: a target lost for t seconds may be taken up again up to
-        ``min(gate + reacquire_speed t, max_gate)`` away (m/s, m): with colours, on clear
-        colour evidence; without, with ``reacquire`` on, the nearest cluster.
-      reacquire: re-acquire a lost target by position alone (above) when there are no colours.
-      coast: the target's predicted velocity decays by this factor per step while no cluster
-        is associated with it (1 keeps it walking on in a straight line).
+      reacquire_speed, max_gate: with colours, a target lost for t seconds may be taken up
+        again up to ``min(gate + reacquire_speed t, max_gate)`` away (m/s, m).
       reid: `jaxtrack.tracking.reid.ReidConfig` of the colour evidence (its ``evidence`` clip,
         ``colour_radius``, ``colour_margin`` and ``switch``: the evidence that excludes or
         re-acquires a cluster).
@@ -115,8 +111,6 @@ class PeoplePFConfig:
     gate: float = 1.0
     reacquire_speed: float = 1.0
     max_gate: float = 4.0
-    reacquire: bool = False
-    coast: float = 1.0
     reid: reid_mod.ReidConfig = reid_mod.ReidConfig()
     resampler: str = "systematic"
     soft_alpha: float = 0.5
@@ -134,8 +128,6 @@ class PeoplePFConfig:
             raise ValueError(f"birth_fraction must be in [0, 1); got {self.birth_fraction}")
         if self.gate <= 0 or self.fov_softness <= 0:
             raise ValueError("gate and fov_softness must be > 0")
-        if not 0.0 <= self.coast <= 1.0:
-            raise ValueError(f"coast must be in [0, 1]; got {self.coast}")
 
     @property
     def num_births(self) -> int:
@@ -231,8 +223,7 @@ class PeoplePFState(NamedTuple):
       target_found: bool, a cluster was associated with the target at the last step.
       births: [B, 2] detections of the last scan to draw births around; birth_mask: [B].
       target_colour: [3] the target's colour feature (selection by colour), or None.
-      lost_time: seconds since a cluster was last associated with the target (None: not
-        kept, with neither colours nor ``reacquire``).
+      lost_time: seconds since a cluster was last associated with the target.
     """
 
     particles: particle.ParticleSet
@@ -344,11 +335,10 @@ def init(key: Array, params: PeoplePFParams, target_position: Array, *, position
         jnp.tile(jnp.diag(std**2), (k, 1, 1)), jnp.zeros(k, bool).at[0].set(True),
         jnp.zeros((k, 2), x.dtype).at[0].set(target_position), jnp.zeros(n, jnp.int32))
     colour = None if target_colour is None else jnp.asarray(target_colour, x.dtype)
-    keep_lost = colour is not None or cfg.reacquire
     return PeoplePFState(particle.ParticleSet(x, lw), clusters, mean, jnp.diag(std**2),
                          jnp.asarray(True), jnp.zeros((max_births, 2), x.dtype),
                          jnp.zeros(max_births, bool), colour,
-                         jnp.zeros((), x.dtype) if keep_lost else None)
+                         None if colour is None else jnp.zeros((), x.dtype))
 
 
 def step(key: Array, state: PeoplePFState, scans: tuple[Scan, ...], robot_pose: Array,
@@ -421,9 +411,6 @@ def _step(key, state, scans, robot_pose, params):
     if cfg.cluster_floor > 0:
         ps, clusters = _balance(ps, clusters, all_xy, all_mask, cfg)
     pred_mean = F @ state.target_mean
-    if cfg.coast < 1.0:
-        pred_mean = jnp.where(state.target_found, pred_mean,
-                              pred_mean.at[2:].multiply(cfg.coast))
     pred_cov = F @ state.target_cov @ F.T + Q.astype(dtype)
     coloured = [s for s in scans if s.colour is not None]
     if state.target_colour is not None and coloured:
@@ -435,10 +422,7 @@ def _step(key, state, scans, robot_pose, params):
         idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
                                    pred_cov[:2, :2], llr, wide, cfg.reid.switch)
     else:
-        gate = cfg.gate
-        if cfg.reacquire and state.lost_time is not None:
-            gate = jnp.minimum(cfg.gate + cfg.reacquire_speed * state.lost_time, cfg.max_gate)
-        idx, found = select_target(clusters, pred_mean[:2], gate, cfg.min_cluster_weight,
+        idx, found = select_target(clusters, pred_mean[:2], cfg.gate, cfg.min_cluster_weight,
                                    pred_cov[:2, :2])
     # The target keeps its own constant-velocity Kalman filter, updated with the selected
     # cluster's mean under the cluster's covariance: when the user brushes past someone and

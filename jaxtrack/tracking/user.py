@@ -138,9 +138,6 @@ class MultiTargetConfig:
         laser sees); tracks coasting longer through an occlusion are kept, not reported.
       stitch_time: longest occlusion (s) across which `stitching` keeps a person's reported id;
         0 turns it off.
-      rgbd_positions: the RGB-D detections are detections of the tracker; off, they give only
-        their colours (``appearance``), e.g. when the laser people are already fused people
-        (the particle filter's clusters, `ParticleConfig`'s ``selection="tracked"``).
     """
 
     tracker: tracker.TrackerConfig = TRACKER
@@ -152,7 +149,6 @@ class MultiTargetConfig:
     user_std: tuple = (0.2, 0.5)
     report_misses: int = 3
     stitch_time: float = 10.0
-    rgbd_positions: bool = True
 
     def __post_init__(self):
         _check_sensors(self.sensors)
@@ -270,7 +266,6 @@ def multi_target(config: MultiTargetConfig = MultiTargetConfig()) -> Estimator:
 def _detections(z: Sensed, config: MultiTargetConfig) -> tracker.Detections:
     """The frame's laser and RGB-D people as one scan of the tracker (sensors 0 and 1)."""
     lm, km = _sensor_masks(config.sensors, z)
-    km = km & config.rgbd_positions
     dtype = z.odom_pose.dtype
     L, K = z.laser_xy.shape[0], z.rgbd_xy.shape[0]
     feats = jnp.concatenate([jnp.zeros((L, 3), dtype), z.rgbd_colour.astype(dtype)], 0)
@@ -391,7 +386,7 @@ def particle_filter(config: ParticleConfig = ParticleConfig()) -> Estimator:
 
     tracked = config.selection == "tracked"
     # The cluster tracker takes the clusters as its laser people, and the RGB-D detections
-    # (positions with ``clusters.rgbd_positions``; colours with ``clusters.appearance``).
+    # (their positions, and their colours with ``clusters.appearance``).
     cluster_tracker = (multi_target(dataclasses.replace(config.clusters, sensors=config.sensors))
                        if tracked else None)
 
