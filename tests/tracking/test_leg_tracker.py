@@ -240,3 +240,14 @@ def test_only_the_nearest_candidates_are_associated():
                                 jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros(3), dt=DT)
     live = np.asarray(state.tracks.status) != tracker.FREE
     np.testing.assert_allclose(sorted(np.asarray(state.tracks.mean)[live, 0]), [1.0, 2.0, 3.0])
+
+
+def test_a_nan_candidate_is_ignored():
+    xy = jnp.array([[1.0, 1.0], [1.0, 1.3], [jnp.nan, 0.0]])
+    clean = _direct(CFG, [[(1.0, 1.0), (1.0, 1.3)]] * 3)[-1]
+    state = leg_tracker.init(CFG)
+    for _ in range(3):
+        state, people = _step(CFG, state, xy, jnp.ones(3, bool), jnp.zeros((1, 2)),
+                              jnp.zeros(1, bool), jnp.zeros(3), dt=DT, max_people=P)
+    assert np.all(np.isfinite(np.asarray(state.tracks.mean)))
+    np.testing.assert_allclose(people.xy, clean[0].xy, atol=1e-6)
