@@ -189,8 +189,9 @@ def multi_target(config: MultiTargetConfig = MultiTargetConfig()) -> Estimator:
     """The multi-target user estimator (module docstring) as an `Estimator`.
 
     ``params(dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, p_detect=0.8, clutter_density=0.02,
-    colour_std=0.1, dtype=float32)``: natural values (noise of the laser people 0.1 m and of
-    the RGB-D people 0.3 m, seed 003).
+    colour_std=0.05, dtype=float32)``: natural values (noise of the laser people 0.1 m and of
+    the RGB-D people 0.3 m, seed 003; the colour feature's noise per channel 0.05, which the
+    user's colour learnt from many looks makes usable: `reid`).
 
     Example:
       >>> est = multi_target(MultiTargetConfig(appearance=True))
@@ -198,7 +199,7 @@ def multi_target(config: MultiTargetConfig = MultiTargetConfig()) -> Estimator:
     tcfg = config.tracker_config
 
     def params(*, dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, p_detect=0.8,
-               clutter_density=0.02, colour_std=0.1, dtype=jnp.float32) -> MultiTargetParams:
+               clutter_density=0.02, colour_std=0.05, dtype=jnp.float32) -> MultiTargetParams:
         tp = tracker.TrackerParams.create(
             tcfg, dt=dt, q=q, r_std=(laser_std, rgbd_std), p_detect=p_detect,
             clutter_density=clutter_density, alpha=1.0 if config.appearance else 0.0,
@@ -246,6 +247,11 @@ def multi_target(config: MultiTargetConfig = MultiTargetConfig()) -> Estimator:
             reacquire = ~found_old & (d2[near] <= config.gate**2)
             slot = jnp.where(found_old, jnp.argmax(has), near)
             found = found_old | reacquire
+        if config.appearance:
+            # The looks of a settled user teach their colour (`reid.learn`).
+            settled = found & (ident.logodds[slot] >= config.reid.switch) & (tr.misses[slot] == 0)
+            ident = reid.learn(config.reid, ident, tr.mean[:, :2], live, slot, settled,
+                               z.rgbd_xy, z.rgbd_colour, rgbd_mask, params.colour_std)
         user_id = jnp.where(found, tr.id[slot], state.user_id)
         mean = jnp.where(found, tr.mean[slot], pred)
         stitch = state.stitch
@@ -378,7 +384,7 @@ def particle_filter(config: ParticleConfig = ParticleConfig()) -> Estimator:
     """Seed 004's people particle filter (module docstring) as an `Estimator`; its state is a
     `people_pf.PeoplePFState`, its parameters a `people_pf.PeoplePFParams`.
 
-    ``params(dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, colour_std=0.1, dtype=float32)``.
+    ``params(dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, colour_std=0.05, dtype=float32)``.
 
     Example:
       >>> est = particle_filter(ParticleConfig(sensors="laser"))
@@ -390,7 +396,7 @@ def particle_filter(config: ParticleConfig = ParticleConfig()) -> Estimator:
     cluster_tracker = (multi_target(dataclasses.replace(config.clusters, sensors=config.sensors))
                        if tracked else None)
 
-    def params(*, dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, colour_std=0.1,
+    def params(*, dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, colour_std=0.05,
                dtype=jnp.float32):
         pf = people_pf.PeoplePFParams.create(config.pf, dt=dt, q=q, std=(laser_std, rgbd_std),
                                              colour_std=colour_std, dtype=dtype)
