@@ -28,7 +28,7 @@ around the robot (eq. 2). One `step`:
    for particles, and a person the RGB-D camera missed for a scan loses most of them (the
    likelihood ratio of a detected person is ~100x that of a missed one). As in mixture particle
    filters (Vermaak, Doucet and Perez, ICCV 2003), each cluster supported by a detection this
-   scan (one within ``support_radius``) is raised to at least ``cluster_floor`` of the mass
+   scan (one within ``support_radius`` whose nearest cluster it is) is raised to at least ``cluster_floor`` of the mass
    before the next resampling; unsupported clusters (a false positive's births) keep their mass
    and die out;
 6. select the target (the user; the seed's selection procedure is "not described"): by
@@ -62,7 +62,7 @@ from jaxtrack.tracking import reid as reid_mod
 Array = jax.Array
 
 __all__ = ["PeoplePFConfig", "PeoplePFParams", "Scan", "PeoplePFState", "init", "step",
-           "log_likelihood", "field_of_view", "select_target"]
+           "log_likelihood", "field_of_view", "select_target", "supported"]
 
 _RESAMPLERS = ("systematic", "multinomial", "stratified", "stop_gradient", "soft")
 
@@ -449,11 +449,22 @@ def _step(key, state, scans, robot_pose, params):
                          lost)
 
 
+def supported(clusters: clustering.Clusters, det_xy: Array, det_mask: Array,
+              radius: float) -> Array:
+    """[K] clusters supported by a detection: the nearest cluster of a detection ``det_xy``
+    [M, 2] (``det_mask`` [M]) within ``radius`` (m). A detection supports one cluster only:
+    the fragments that the clustering splits off one person's particle cloud are not
+    supported by that person's detection."""
+    d2 = jnp.sum((clusters.means[:, None, :2] - det_xy[None]) ** 2, -1)     # [K, M]
+    d2 = jnp.where(clusters.mask[:, None], d2, jnp.inf)
+    nearest = jnp.argmin(d2, 0) == jnp.arange(d2.shape[0])[:, None]          # [K, M]
+    return clusters.mask & jnp.any(nearest & det_mask[None] & (d2 <= radius**2), 1)
+
+
 def _balance(ps, clusters, det_xy, det_mask, cfg):
-    d2 = jnp.sum((clusters.means[:, None, :2] - det_xy[None]) ** 2, -1)
-    supported = clusters.mask & jnp.any(det_mask[None] & (d2 <= cfg.support_radius**2), 1)
+    supported_ = supported(clusters, det_xy, det_mask, cfg.support_radius)
     w = clusters.weights
-    target = jnp.where(supported, jnp.maximum(w, cfg.cluster_floor), w)
+    target = jnp.where(supported_, jnp.maximum(w, cfg.cluster_floor), w)
     shift = jnp.where(w > 0, jnp.log(jnp.where(w > 0, target, 1.0))
                       - jnp.log(jnp.where(w > 0, w, 1.0)), 0.0)
     lw = ps.log_weights + jnp.where(clusters.labels >= 0, shift[clusters.labels], 0.0)

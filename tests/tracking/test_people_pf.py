@@ -168,3 +168,35 @@ def test_bad_input():
         people_pf.step(jax.random.PRNGKey(0), state, (bad, scan), jnp.zeros(3), params)
     with pytest.raises(ValueError, match="p_detect"):
         people_pf.PeoplePFParams.create(p_detect=(1.0, 0.5))
+
+
+def test_a_detection_supports_only_its_nearest_cluster():
+    # Brute force: cluster k is supported iff some present detection within the radius has k
+    # as its nearest used cluster.
+    from jaxtrack.tracking import clustering
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        K, M = 6, 5
+        means = rng.uniform(-2, 2, (K, 4))
+        mask = rng.uniform(size=K) < 0.7
+        det = rng.uniform(-2, 2, (M, 2))
+        dmask = rng.uniform(size=M) < 0.8
+        cl = clustering.Clusters(jnp.full(K, 1.0 / K), jnp.asarray(means),
+                                 jnp.tile(jnp.eye(4), (K, 1, 1)), jnp.asarray(mask),
+                                 jnp.asarray(means[:, :2]), jnp.zeros(8, jnp.int32))
+        got = np.asarray(people_pf.supported(cl, jnp.asarray(det), jnp.asarray(dmask), 0.8))
+        ref = np.zeros(K, bool)
+        for j in range(M):
+            if not dmask[j] or not mask.any():
+                continue
+            d = [np.linalg.norm(means[k, :2] - det[j]) if mask[k] else np.inf for k in range(K)]
+            k = int(np.argmin(d))
+            if d[k] <= 0.8:
+                ref[k] = True
+        np.testing.assert_array_equal(got, ref)
+    # One person's cloud split in two fragments 0.3 m apart: their one detection supports one.
+    cl = clustering.Clusters(jnp.array([0.8, 0.2]), jnp.array([[1.0, 0, 0, 0], [1.3, 0, 0, 0]]),
+                             jnp.tile(jnp.eye(4), (2, 1, 1)), jnp.array([True, True]),
+                             jnp.array([[1.0, 0], [1.3, 0]]), jnp.zeros(4, jnp.int32))
+    got = people_pf.supported(cl, jnp.array([[1.05, 0.0]]), jnp.array([True]), 0.6)
+    np.testing.assert_array_equal(got, [True, False])

@@ -359,3 +359,13 @@ def test_a_person_lost_in_an_occlusion_keeps_their_reported_id(stitch_time):
     # The occlusion outlived the track (so the check can fail without stitching).
     assert not any(reported(k) for k in range(35, 45))
     assert (before == after) == (stitch_time > 0)
+
+
+def test_largest_cluster_std_is_the_largest_eigenvalue_root():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(50, 2, 2))
+    covs = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(2)
+    got = np.asarray(user._largest_std(jnp.asarray(covs)))
+    np.testing.assert_allclose(got, np.sqrt(np.linalg.eigvalsh(covs)[:, -1]), rtol=1e-9)
+    with pytest.raises(ValueError, match="max_cluster_std"):
+        user.ParticleConfig(max_cluster_std=0.0)
