@@ -369,3 +369,33 @@ def test_largest_cluster_std_is_the_largest_eigenvalue_root():
     np.testing.assert_allclose(got, np.sqrt(np.linalg.eigvalsh(covs)[:, -1]), rtol=1e-9)
     with pytest.raises(ValueError, match="max_cluster_std"):
         user.ParticleConfig(max_cluster_std=0.0)
+
+
+@pytest.mark.parametrize("max_looks", [0, 50])
+def test_the_user_estimator_learns_the_users_colour_from_their_track(max_looks):
+    # The shown look is off by 0.15 from the user's colour; a second of looks of the settled
+    # user's track pulls the learnt colour to within 0.05 of it (learning off: it stays).
+    person, other, laser, lm, rgbd, km, colours, true = _known_distractor()
+    shown = true + np.array([-0.1, 0.1, 0.05])
+    cfg = _multi("gnn", appearance=True, reid=reid.ReidConfig(max_looks=max_looks))
+    est = user.multi_target(cfg)
+    params = est.params(laser_std=0.05, rgbd_std=0.1)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    state = est.init(jax.random.PRNGKey(0), params,
+                     user.Prior(f32(person[0]), jnp.zeros(3, jnp.float32), f32(shown)))
+
+    def body(s, inp):
+        lx, lmk, kx, kmk, col = inp
+        s, _ = est.update(jax.random.PRNGKey(0), s,
+                          _sensed(lx, lmk, kx, kmk, col, jnp.zeros(3, jnp.float32)), params)
+        return s, None
+
+    xs = (f32(laser[:10]), jnp.asarray(lm[:10]), f32(rgbd[:10]), jnp.asarray(km[:10]),
+          f32(colours[:10]))
+    final = jax.jit(lambda s, xs: jax.lax.scan(body, s, xs)[0])(state, xs)
+    learnt = np.asarray(final.reid.colour)
+    if max_looks == 0:
+        np.testing.assert_allclose(learnt, shown, atol=1e-6)
+    else:
+        assert float(final.reid.looks) >= 6
+        assert np.linalg.norm(learnt - true) < 0.05 < np.linalg.norm(shown - true)
