@@ -336,9 +336,8 @@ class ParticleConfig:
         through the encounter; following only the user's own prediction, the nearest cluster
         to it is often the other person. "nearest": the cluster nearest to the user's own
         constant-velocity prediction (`people_pf.select_target`; with ``colour``, weighed by
-        the colour). Measured in the shop (256 episodes, eq. 5): the user is lost in 13.9 % of
-        the frames with "tracked", 36.4 % with "nearest" (docs/design_notes.md, "People PF:
-        choosing the user among the clusters").
+        the colour). "tracked" loses the user far less often in the shop (docs/design_notes.md,
+        "People PF: choosing the user among the clusters").
       clusters: the cluster tracker of ``selection="tracked"`` (its ``sensors`` are set from
         this configuration's).
       max_cluster_std: with ``selection="tracked"``, a cluster whose position spread (the
