@@ -454,7 +454,11 @@ def supported(clusters: clustering.Clusters, det_xy: Array, det_mask: Array,
     """[K] clusters supported by a detection: the nearest cluster of a detection ``det_xy``
     [M, 2] (``det_mask`` [M]) within ``radius`` (m). A detection supports one cluster only:
     the fragments that the clustering splits off one person's particle cloud are not
-    supported by that person's detection."""
+    supported by that person's detection.
+
+    Example:
+      >>> ok = supported(state.clusters, laser_xy, laser_mask, radius=0.6)   # [K] bools
+    """
     d2 = jnp.sum((clusters.means[:, None, :2] - det_xy[None]) ** 2, -1)     # [K, M]
     d2 = jnp.where(clusters.mask[:, None], d2, jnp.inf)
     nearest = jnp.argmin(d2, 0) == jnp.arange(d2.shape[0])[:, None]          # [K, M]

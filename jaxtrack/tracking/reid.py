@@ -185,6 +185,11 @@ def learn(config: ReidConfig, state: ReidState, positions: Array, live: Array, s
 
     Returns:
       The `ReidState` with ``colour`` and ``looks`` updated (unchanged without a colour shown).
+
+    Example:
+      >>> settled = (state.logodds[slot] >= ReidConfig().switch) & (tracks.misses[slot] == 0)
+      >>> state = learn(ReidConfig(), state, tracks.mean[:, :2], live, slot, settled, rgbd_xy,
+      ...               rgbd_colour, rgbd_mask, 0.05)
     """
     if config.max_looks == 0:
         return state
