@@ -149,7 +149,8 @@ def segment_clear(start: Array, ends: Array, obstacles: Array, obstacle_mask: Ar
     """[M] bool: whether each segment ``start`` [2] -> ``ends`` [M, 2] is clear of the masked
     obstacle points [Q, 2] (module docstring)."""
     # Coordinates as separate [M, Q] planes, not a trailing axis of 2: XLA's CPU backend
-    # vectorises over the minor axis, and a minor axis of 2 made this 4x slower.
+    # vectorises over the minor axis; a minor axis of 2 made this about 27x slower (804
+    # outline points of the shop: docs/design_notes.md, "Routes and avoidance").
     abx, aby = (ends - start)[:, 0:1], (ends - start)[:, 1:2]            # [M, 1]
     aox, aoy = obstacles[None, :, 0] - start[0], obstacles[None, :, 1] - start[1]  # [1, Q]
     den = abx * abx + aby * aby

@@ -28,9 +28,9 @@ around the robot (eq. 2). One `step`:
    for particles, and a person the RGB-D camera missed for a scan loses most of them (the
    likelihood ratio of a detected person is ~100x that of a missed one). As in mixture particle
    filters (Vermaak, Doucet and Perez, ICCV 2003), each cluster supported by a detection this
-   scan (one within ``support_radius`` whose nearest cluster it is) is raised to at least ``cluster_floor`` of the mass
-   before the next resampling; unsupported clusters (a false positive's births) keep their mass
-   and die out;
+   scan (one within ``support_radius`` whose nearest cluster it is, `supported`) is raised to
+   at least ``cluster_floor`` of the mass before the next resampling; unsupported clusters (a
+   false positive's births, fragments of a person's cloud) keep their mass and die out;
 6. select the target (the user; the seed's selection procedure is "not described"): by
    motion continuity and, when the scans carry colour features and the state the user's colour,
    by colour (`select_target`): among the clusters within ``gate`` of the target's prediction,
