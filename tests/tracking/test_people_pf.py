@@ -200,3 +200,14 @@ def test_a_detection_supports_only_its_nearest_cluster():
                              jnp.array([[1.0, 0], [1.3, 0]]), jnp.zeros(4, jnp.int32))
     got = people_pf.supported(cl, jnp.array([[1.05, 0.0]]), jnp.array([True]), 0.6)
     np.testing.assert_array_equal(got, [True, False])
+
+
+def test_support_of_no_detections_and_of_a_nan_detection_is_none():
+    from jaxtrack.tracking import clustering
+    cl = clustering.Clusters(jnp.array([1.0, 0.0]), jnp.array([[1.0, 0, 0, 0], [0, 0, 0, 0]]),
+                             jnp.tile(jnp.eye(4), (2, 1, 1)), jnp.array([True, False]),
+                             jnp.array([[1.0, 0], [0, 0]]), jnp.zeros(4, jnp.int32))
+    none = people_pf.supported(cl, jnp.zeros((0, 2)), jnp.zeros(0, bool), 0.6)
+    np.testing.assert_array_equal(none, [False, False])
+    nan = people_pf.supported(cl, jnp.array([[jnp.nan, 0.0]]), jnp.array([True]), 0.6)
+    np.testing.assert_array_equal(nan, [False, False])

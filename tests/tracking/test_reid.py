@@ -119,3 +119,15 @@ def test_bad_learning_settings_are_refused():
         reid.ReidConfig(max_looks=-1)
     with pytest.raises(ValueError, match="learn_gate"):
         reid.ReidConfig(learn_gate=0.0)
+
+
+def test_no_detections_and_nan_colours_teach_nothing():
+    cfg = reid.ReidConfig()
+    state = reid.init(cfg, jnp.array([0.8, 0.2, 0.2]), jnp.arange(2))
+    empty = reid.learn(cfg, state, jnp.asarray(TRACKS), jnp.asarray(LIVE), 0, jnp.asarray(True),
+                       jnp.zeros((0, 2)), jnp.zeros((0, 3)), jnp.zeros(0, bool), 0.05)
+    np.testing.assert_array_equal(empty.colour, state.colour)
+    assert float(empty.looks) == 1.0
+    nan = _learn(cfg, state, jnp.array([jnp.nan, 0.2, 0.2]))
+    np.testing.assert_array_equal(nan.colour, state.colour)
+    assert float(nan.looks) == 1.0
