@@ -75,17 +75,18 @@ def run(args):
         metrics[name] = {k: np.asarray(v, float) for k, v in m.items()}
         print(f"{name}: {walls[name]:.1f} s", file=sys.stderr, flush=True)
 
-    floor = metrics.get("truth")
+    def rms_pooled(m):
+        return m["following_rms"].mean(), np.sqrt(np.mean(m["following_rms"] ** 2))
+
+    floor = rms_pooled(metrics["truth"]) if "truth" in metrics else None
     rows = []
     for name in names:
         m = metrics[name]
-        rms, pooled = m["following_rms"].mean(), np.sqrt(np.mean(m["following_rms"] ** 2))
+        rms, pooled = rms_pooled(m)
+        ratios = ["-", "-"] if floor is None else [f"{rms / floor[0]:.2f}x",
+                                                   f"{pooled / floor[1]:.2f}x"]
         mota = m["mota"][np.isfinite(m["mota"])]
-        x = (lambda v, f: f"{v / f:.2f}x") if floor is not None else (lambda v, f: "-")
-        rows.append([name, f"{rms:.3f}", f"{pooled:.3f}",
-                     x(rms, None if floor is None else floor["following_rms"].mean()),
-                     x(pooled, None if floor is None else
-                       np.sqrt(np.mean(floor["following_rms"] ** 2))),
+        rows.append([name, f"{rms:.3f}", f"{pooled:.3f}", *ratios,
                      f"{m['lost_fraction'].mean():.1%}", f"{m['user_switches'].mean():.2f}",
                      f"{mota.mean():.1%}" if mota.size else "-", f"{walls[name]:.1f}"])
     print(_common.format_table(["estimator", "RMS [m]", "pooled [m]", "RMS / floor",
