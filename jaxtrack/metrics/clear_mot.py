@@ -56,6 +56,7 @@ import optax
 from jax import lax
 
 from jaxtrack import _checks
+from jaxtrack.metrics import _pairs
 
 Array = jax.Array
 
@@ -134,7 +135,8 @@ _COUNTS = ("num_objects", "num_predictions", "num_matches", "num_switches", "num
 
 def clear_mot(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Array,
               hyp_pos: Array, hyp_mask: Array | None, threshold: float | Array, *,
-              convention: str = "motmetrics", num_ids: int | None = None) -> ClearMOTResult:
+              convention: str = "motmetrics", num_ids: int | None = None,
+              distance: str = "euclidean") -> ClearMOTResult:
     r"""CLEAR MOT metrics of one episode (Bernardin & Stiefelhagen 2008; see the module doc).
 
     A slot is present where its mask is True (or the mask is None) and its id is >= 0; -1 marks an
@@ -144,16 +146,20 @@ def clear_mot(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Arra
 
     Args:
       gt_ids: [T, G] integer object ids in [0, num_ids), -1 for empty slots; unique per frame.
-      gt_pos: [T, G, d] object positions (m).
+      gt_pos: [T, G, d] object positions (m), or boxes [T, G, 4] (left, top, width, height) with
+        ``distance="iou"``.
       gt_mask: optional [T, G] bools.
       hyp_ids: [T, H] integer hypothesis (track) ids >= 0, -1 for empty slots; unique per frame.
-      hyp_pos: [T, H, d] hypothesis positions (m).
+      hyp_pos: [T, H, d] hypothesis positions (m) or boxes.
       hyp_mask: optional [T, H] bools.
-      threshold: largest distance (m) of a correspondence; may be traced.
+      threshold: largest distance of a correspondence: metres, or ``1 - IoU`` for boxes
+        (MOTChallenge: 0.5); may be traced.
       convention: ``"motmetrics"`` (default) or ``"trackeval"``: how correspondences are carried
         over and fragmentations counted (module doc). Static.
       num_ids: static bound on the object ids (memory per object is indexed by id); default
         ``T * G``, which holds any numbering 0, 1, 2, ... of the objects.
+      distance: ``"euclidean"`` (default) or ``"iou"``: image boxes matched by ``1 - IoU``,
+        which is then also what MOTP averages (py-motmetrics' MOTChallenge convention). Static.
 
     Returns:
       `ClearMOTResult` (scalars, plus per-frame `FrameEvents` [T, G]). Integer counts are int32.
@@ -166,6 +172,7 @@ def clear_mot(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Arra
     if not isinstance(convention, str) or convention not in CONVENTIONS:
         raise ValueError(f"unknown convention {convention!r}; expected one of {list(CONVENTIONS)}")
     T, G, H = _check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
+    _pairs.check_distance(distance, np.shape(gt_pos)[2])
     if num_ids is None:
         num_ids = max(T * G, 1)
     if not isinstance(num_ids, (int, np.integer)) or num_ids <= 0:
@@ -178,7 +185,7 @@ def clear_mot(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Arra
         raise ValueError(f"threshold must be a scalar; got shape {list(jnp.shape(threshold))}")
     threshold = jnp.asarray(threshold, jnp.result_type(gt_pos, hyp_pos, float))
     return _clear_mot(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask, threshold,
-                      convention, int(num_ids))
+                      convention, int(num_ids), distance)
 
 
 def combine(results: ClearMOTResult) -> ClearMOTResult:
@@ -221,9 +228,9 @@ class _Memory(NamedTuple):
     totals: dict
 
 
-@functools.partial(jax.jit, static_argnames=("convention", "num_ids"))
+@functools.partial(jax.jit, static_argnames=("convention", "num_ids", "distance"))
 def _clear_mot(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask, threshold, convention,
-               num_ids):
+               num_ids, distance="euclidean"):
     T, G = gt_ids.shape
     H = hyp_ids.shape[1]
     dtype = jnp.result_type(gt_pos, hyp_pos, float)
@@ -253,7 +260,8 @@ def _clear_mot(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask, threshold, c
     def step(mem, inp):
         t, oid, opos, opresent, hid, hpos, hpresent = inp
         memory, events = _frame(mem, t, oid.astype(int_), opos.astype(dtype), opresent,
-                                hid, hpos.astype(dtype), hpresent, threshold, convention)
+                                hid, hpos.astype(dtype), hpresent, threshold, convention,
+                                distance)
         return memory, events
 
     frames_in = (jnp.arange(T, dtype=int_), gt_ids, gt_pos, gt_present, hyp_ids, hyp_pos,
@@ -282,11 +290,11 @@ def _clear_mot(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask, threshold, c
     return _finish(sums, frames)
 
 
-def _frame(mem, t, oid, opos, opresent, hid, hpos, hpresent, threshold, convention):
+def _frame(mem, t, oid, opos, opresent, hid, hpos, hpresent, threshold, convention, distance):
     G, H = oid.shape[0], hid.shape[0]
     K = mem.last_hyp.shape[0]
     safe_oid = jnp.where(opresent, oid, 0)
-    dist = _pairwise_distance(opos, hpos)
+    dist = _pairs.distance_matrix(opos, hpos, distance)
     allowed = opresent[:, None] & hpresent[None, :] & (dist <= threshold)
 
     # 1. Carried-over correspondences: an object claims its previous hypothesis; when several
@@ -362,14 +370,6 @@ def _frame(mem, t, oid, opos, opresent, hid, hpos, hpresent, threshold, conventi
 @jax.jit
 def _combine(counts):
     return _finish({name: jnp.sum(value) for name, value in counts.items()}, frames=None)
-
-
-def _pairwise_distance(a, b):
-    """[G, H] Euclidean distances with a finite gradient at 0 (NaN stays NaN)."""
-    diff = a[:, None, :] - b[None, :, :]
-    sq = jnp.sum(diff * diff, -1)
-    positive = sq > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1.0)), sq)
 
 
 def _ratio(num, den):
