@@ -33,8 +33,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from tqdm import tqdm
 
-__all__ = ["Summary", "MonteCarloResult", "evaluate", "summarize", "format_summary"]
+__all__ = ["Summary", "MonteCarloResult", "evaluate", "warm_up", "summarize", "format_summary",
+           "progress_bar"]
 
 
 class Summary(NamedTuple):
@@ -87,7 +89,8 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
         multiple of the device count. The last batch is padded, so there is one compile.
       out: optional ``.npz`` path; finished batches are saved there after every batch and a
         later call with the same key and ``num_episodes`` resumes from it.
-      progress: print a progress line per batch (episodes/s) to stderr.
+      progress: show a progress bar (batches, episodes/s; `progress_bar`) on stderr and print
+        the summary table there at the end.
       devices: devices to shard over (default: all of ``jax.devices()``).
       on_batch: optional ``on_batch(done, num_episodes)`` called after each saved batch.
 
@@ -132,25 +135,25 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
     start = time.perf_counter()
     computed = 0
     num_batches = math.ceil(num_episodes / batch_size)
+    bar = progress_bar(num_episodes, initial=done, disable=not progress)
     while done < num_episodes:
         count = min(batch_size, num_episodes - done)
         idx = np.arange(done, done + batch_size) % num_episodes  # pad by wrapping: one shape
         batch_keys = _shard(keys, idx, sharding)
-        t0 = time.perf_counter()
         outputs = run(batch_keys, params)
         outputs = jax.tree_util.tree_map(lambda x: _gather(x)[:count], outputs)
-        dt = time.perf_counter() - t0
         leaves, treedef = jax.tree_util.tree_flatten(outputs)
         chunks.append(leaves)
         done += count
         computed += count
         if out is not None:
             _save(out, chunks, done, fingerprint, num_episodes)
-        if progress:
-            _progress(done, num_episodes, math.ceil(done / batch_size), num_batches,
-                      count / max(dt, 1e-9))
+        bar.set_postfix_str(f"batch {math.ceil(done / batch_size)}/{num_batches}",
+                            refresh=False)
+        bar.update(count)
         if on_batch is not None:
             on_batch(done, num_episodes)
+    bar.close()
     seconds = time.perf_counter() - start
     leaves = [np.concatenate(parts, 0) for parts in zip(*chunks)]
     metrics = jax.tree_util.tree_unflatten(treedef, leaves)
@@ -159,6 +162,44 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
         print(format_summary(summary, num_episodes), file=sys.stderr)
     rate = computed / seconds if computed else 0.0
     return MonteCarloResult(metrics, summary, seconds, rate, n_dev)
+
+
+def warm_up(episode_fn: Callable, params, key, batch_size: int, devices=None) -> float:
+    """Compile ``episode_fn`` for batches of ``batch_size`` without running an episode.
+
+    A later `evaluate` with the same ``episode_fn`` (the same object), a key of the same type,
+    parameters of the same structure and dtypes, the same ``batch_size`` and devices then starts
+    without compiling, so that compilation and simulation can be timed apart.
+
+    Args:
+      episode_fn, params, key, batch_size, devices: as for `evaluate` (``batch_size`` is
+        rounded up to a multiple of the device count in the same way).
+
+    Returns:
+      the seconds spent tracing and compiling.
+
+    Example:
+      >>> seconds = warm_up(episode, {"scale": 1.0}, jax.random.PRNGKey(0), 64)
+      >>> res = evaluate(episode, {"scale": 1.0}, jax.random.PRNGKey(1), 256, batch_size=64)
+    """
+    devices = tuple(jax.devices() if devices is None else devices)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be positive; got {batch_size}")
+    batch_size = int(math.ceil(batch_size / len(devices)) * len(devices))
+    t0 = time.perf_counter()
+    run, sharding = _compiled(episode_fn, devices)
+    keys = jax.random.split(key, batch_size)
+    run.lower(_shard(keys, np.arange(batch_size), sharding), params).compile()
+    return time.perf_counter() - t0
+
+
+def progress_bar(total: int, unit: str = "episodes", **kwargs) -> tqdm:
+    """A `tqdm` progress bar on stderr counting ``unit`` (rate in ``unit``/s), as `evaluate`
+    and the command line show it; ``kwargs`` go to `tqdm` (e.g. ``disable``, ``initial``)."""
+    fmt = ("{l_bar}{bar}| {n_fmt}/{total_fmt} " + unit
+           + " [{elapsed}<{remaining}, {rate_noinv_fmt}{postfix}]")
+    return tqdm(total=total, unit=" " + unit, bar_format=fmt, file=sys.stderr,
+                dynamic_ncols=True, **kwargs)
 
 
 def summarize(metrics) -> dict:
@@ -250,11 +291,3 @@ def _load(path: Path, fingerprint, num_episodes):
         leaves = [f[f"leaf_{i}"] for i in range(int(f["__num_leaves__"]))]
     return done, [leaves]
 
-
-def _progress(done, total, batch, num_batches, rate):
-    bar_len = 24
-    filled = int(bar_len * done / total)
-    bar = "#" * filled + "." * (bar_len - filled)
-    end = "\n" if done >= total or not sys.stderr.isatty() else "\r"
-    print(f"[{bar}] batch {batch}/{num_batches}  {done}/{total} episodes  {rate:,.0f} episodes/s",
-          end=end, file=sys.stderr, flush=True)

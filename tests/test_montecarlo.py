@@ -106,8 +106,33 @@ def test_same_results_on_one_and_four_devices():
 def test_progress_and_summary_are_printed(capsys):
     montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(0), 12, batch_size=6)
     err = capsys.readouterr().err
-    assert "episodes/s" in err and "batch 2/2" in err
+    # The bar's last state (tqdm) counts all episodes and batches, with a rate.
+    last = err.split("Monte-Carlo summary")[0].replace("\r", "\n").strip().splitlines()[-1]
+    assert "12/12 episodes" in last and "episodes/s" in last and "batch 2/2" in last
     assert "Monte-Carlo summary over 12 episodes" in err and "95% CI" in err
+
+
+def test_nothing_is_printed_without_progress(capsys):
+    montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(0), 12, batch_size=6,
+                        progress=False)
+    assert capsys.readouterr() == ("", "")
+
+
+def test_warm_up_compiles_once_for_the_evaluation_that_follows():
+    traces = []
+
+    def counted(key, params):
+        traces.append(1)  # runs at trace time only
+        return episode(key, params)
+
+    seconds = montecarlo.warm_up(counted, PARAMS, jax.random.PRNGKey(0), 6)
+    assert seconds > 0 and len(traces) == 1
+    res = montecarlo.evaluate(counted, PARAMS, jax.random.PRNGKey(5), 12, batch_size=6,
+                              progress=False)
+    assert len(traces) == 1
+    ref = montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(5), 12, batch_size=6,
+                              progress=False)
+    np.testing.assert_array_equal(res.metrics["final"], ref.metrics["final"])
 
 
 def test_bad_arguments_raise():
