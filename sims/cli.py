@@ -2,7 +2,8 @@
 ``jaxtrack run person-following``, ``jaxtrack track`` and ``jaxtrack evaluate``.
 
 The console command lives in `sims`, the top layer, so that importing `jaxtrack` never imports
-MuJoCo; only the ``run`` commands import it. ``demo`` dispatches to `jaxtrack.demo.run`, ``run
+MuJoCo; only the ``run`` commands and the scene demos import it. ``demo`` (``all``, ``humanoid``
+or ``following``) dispatches to `sims.demo.run`, ``demo filters`` to `jaxtrack.demo.run`, ``run
 humanoid-reach`` to `run_humanoid_reach`, ``run person-following`` to
 `sims.following.report.run_person_following`, ``track`` (the sensing step and a user estimator
 replayed on a ROS bag) to `jaxtrack.io.replay.track_bag`, ``evaluate`` (CLEAR MOT of a tracks
@@ -12,6 +13,8 @@ file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import math
 import sys
 import time
@@ -33,10 +36,18 @@ def main(argv: list[str] | None = None) -> int:
     estimators = tuple(user.CONFIGS)
     parser = argparse.ArgumentParser(prog="jaxtrack", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="KF / EKF / UKF over many vmapped episodes: accuracy and "
-                                       "speed table")
-    demo.add_argument("--episodes", type=int, default=1000)
-    demo.add_argument("--steps", type=int, default=200)
+    demo = sub.add_parser("demo", help="both scenes' closed-loop Monte-Carlo evaluations at a "
+                                       "small size (about a minute and a half on two cores), "
+                                       "or the KF / EKF / UKF filter demo")
+    demo.add_argument("which", nargs="?", choices=("all", "humanoid", "following", "filters"),
+                      default="all",
+                      help="all (default): the humanoid reach and person following scenes; "
+                           "humanoid or following: one of them; filters: KF / EKF / UKF over "
+                           "many vmapped episodes, accuracy and speed table (no MuJoCo)")
+    demo.add_argument("--episodes", type=int, default=None,
+                      help="filters only: episodes (default 1000)")
+    demo.add_argument("--steps", type=int, default=None,
+                      help="filters only: steps per episode (default 200)")
     demo.add_argument("--seed", type=int, default=0)
     run = sub.add_parser("run", help="run a simulated closed-loop evaluation")
     scenes = run.add_subparsers(dest="scene", required=True)
@@ -149,11 +160,22 @@ def main(argv: list[str] | None = None) -> int:
         print(trajectories.format_clear_mot(result))
         return 0
     if args.command == "demo":
-        if args.episodes < 1 or args.steps < 1:
+        if args.which != "filters":
+            if args.episodes is not None or args.steps is not None:
+                parser.error("--episodes and --steps apply to `jaxtrack demo filters`; run the "
+                             "scenes at other sizes with `jaxtrack run`")
+            _import_mjx_quietly()
+            from sims import demo as scene_demo
+
+            scene_demo.run(args.which, seed=args.seed)
+            return 0
+        episodes = 1000 if args.episodes is None else args.episodes
+        steps = 200 if args.steps is None else args.steps
+        if episodes < 1 or steps < 1:
             parser.error("--episodes and --steps must be positive")
         from jaxtrack import demo as demo_mod
 
-        demo_mod.run(args.episodes, args.steps, args.seed)
+        demo_mod.run(episodes, steps, args.seed)
         return 0
     if args.scene == "person-following":
         if args.episodes < 1 or args.particles < 2 or args.duration <= 0:
@@ -161,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         if not 0 <= args.people <= 15:
             parser.error(f"--people must be in [0, 15] (the scene holds 16 people); got "
                          f"{args.people}")
+        _import_mjx_quietly()
         from sims.following.report import run_person_following
 
         run_person_following(args.episodes, args.estimator, args.follower, args.people,
@@ -177,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{flag} must be a finite positive number; got {value}")
     if not 0 < args.heading_gain <= 1:
         parser.error(f"--heading-gain must be in (0, 1]; got {args.heading_gain}")
+    _import_mjx_quietly()
     run_humanoid_reach(args.episodes, args.tracker, args.out, args.seed, args.particles,
                        args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
@@ -190,13 +214,14 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        resolution=(80, 60), stream=sys.stdout, lambda_x: float = 0.1,
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
                        temperature: float | None = None, turn_prediction: bool = False,
-                       heading_gain: float = 0.5) -> dict:
+                       heading_gain: float = 0.5, progress: bool = True) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
     values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
     ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
-    the PCA heading (`sims.humanoid.episode.EpisodeConfig`).
+    the PCA heading (`sims.humanoid.episode.EpisodeConfig`). ``progress`` shows a progress bar
+    on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.
@@ -219,22 +244,22 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
     total = episodes * len(tasks)
-    t0 = time.perf_counter()
     # Compile once (every task has the same shapes: the tasks are traced parameters).
-    montecarlo.evaluate(episode_fn, tasks[0], key, episodes, progress=False)
-    compile_s = time.perf_counter() - t0
+    compile_s = montecarlo.warm_up(episode_fn, tasks[0], key, episodes)
     results = []
     t1 = time.perf_counter()
-    for i, params in enumerate(tasks):
-        res = montecarlo.evaluate(episode_fn, params, jax.random.fold_in(key, i), episodes,
-                                  progress=False)
-        results.append(res.metrics)
-        _bar(episodes * (i + 1), total, time.perf_counter() - t1)
+    with montecarlo.progress_bar(total, disable=not progress) as bar:
+        for i, params in enumerate(tasks):
+            res = montecarlo.evaluate(episode_fn, params, jax.random.fold_in(key, i), episodes,
+                                      progress=False)
+            results.append(res.metrics)
+            bar.set_postfix_str(f"task {TASK_NAMES[i]}", refresh=False)
+            bar.update(episodes)
     run_s = time.perf_counter() - t1
     table = task_table(results, frames)
     print(table, file=stream)
     print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}) "
-          f"in {run_s:.1f} s after {compile_s:.1f} s of compilation and first batch "
+          f"in {run_s:.1f} s after {compile_s:.1f} s of compilation "
           f"({total / run_s:.1f} episodes/s)", file=stream)
     if out is not None:
         _write_outputs(Path(out), results, tracker)
@@ -242,11 +267,24 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
             "run_seconds": run_s}
 
 
-def _bar(done, total, seconds):
-    filled = int(24 * done / total)
-    end = "\n" if done >= total or not sys.stderr.isatty() else "\r"
-    print(f"[{'#' * filled}{'.' * (24 - filled)}] {done}/{total} episodes  {seconds:.1f} s",
-          end=end, file=sys.stderr, flush=True)
+# What mujoco.mjx prints (to stdout, from ``mujoco/mjx/warp/__init__.py``) when its optional GPU
+# backend, NVIDIA Warp, is not installed; the scenes run on MJX's JAX backend and never need it.
+_MJX_BACKEND_NOTICES = ("Failed to import warp:", "Failed to import mujoco_warp:")
+
+
+def _import_mjx_quietly() -> None:
+    """Import ``mujoco.mjx`` without its notices about the missing Warp backend; anything else
+    the import prints is passed on."""
+    if "mujoco.mjx" in sys.modules:
+        return
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(captured):
+            import mujoco.mjx  # noqa: F401
+    finally:
+        for line in captured.getvalue().splitlines(keepends=True):
+            if not line.startswith(_MJX_BACKEND_NOTICES):
+                sys.stdout.write(line)
 
 
 def task_table(results, frames: int, names=None) -> str:

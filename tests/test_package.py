@@ -42,7 +42,8 @@ def jaxtrack_command():
 
 
 def test_demo_command_prints_a_results_table_with_consistent_filters():
-    out = subprocess.run(jaxtrack_command() + ["demo", "--episodes", "8", "--steps", "30"],
+    out = subprocess.run(jaxtrack_command() + ["demo", "filters", "--episodes", "8", "--steps",
+                                               "30"],
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     rows = {line.split("  ")[0].strip(): line for line in out.stdout.splitlines()}
@@ -57,6 +58,6 @@ def test_demo_command_prints_a_results_table_with_consistent_filters():
 
 
 def test_cli_rejects_bad_arguments():
-    out = subprocess.run(jaxtrack_command() + ["demo", "--episodes", "0"],
+    out = subprocess.run(jaxtrack_command() + ["demo", "filters", "--episodes", "0"],
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode != 0 and "positive" in out.stderr

@@ -19,15 +19,29 @@ _ROWS = (("following_rms", "following RMS error [m]", "{:.3f}"),
          ("mot_switches", "MOT id switches [per episode]", "{:.2f}"),
          ("near_fraction", "someone within 0.45 m [% of time]", "{:.2%}"),
          ("stop_fraction", "safety stop [% of time]", "{:.2%}"))
+# CLEAR MOT scores a multi-target tracker's tracks; a single-person estimator has none (its
+# episodes hold NaN and -1 there, `sims.following.episode`).
+_MOT_KEYS = ("mota", "motp", "mot_switches")
 
 
-def metrics_table(metrics: dict, title: str = "") -> str:
-    """Mean (and 5-95 % range over episodes) of every episode metric."""
+def metrics_table(metrics: dict, title: str = "", multi_target: bool | None = None) -> str:
+    """Mean (and 5-95 % range over episodes) of every episode metric that applies.
+
+    ``multi_target``: whether the estimator is a multi-target tracker (the CLEAR MOT rows
+    apply); None decides it from the values (rows without a finite value are left out).
+    Non-finite values (and the -1 of an unscored id-switch count) are left out of a row's
+    statistics.
+
+    Example:
+      >>> print(metrics_table(res["metrics"], "kf", multi_target=False))
+    """
     lines = [title] if title else []
     width = max(len(r[1]) for r in _ROWS) + 2
     lines.append(f"{'metric':<{width}}{'mean':>12}{'5 %':>12}{'95 %':>12}")
     lines.append("-" * (width + 36))
     for key, name, fmt in _ROWS:
+        if multi_target is False and key in _MOT_KEYS:
+            continue
         v = np.asarray(metrics[key], float)
         v = v[np.isfinite(v) & (v >= 0)] if key == "mot_switches" else v[np.isfinite(v)]
         if v.size == 0:
@@ -74,8 +88,12 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
                          duration: float = 60.0, sensors: str = "both", particles: int = 256,
                          batch_size: int | None = None, stream=sys.stdout,
                          appearance: bool = False, layout: str = "shop",
-                         wander: bool = False, animate: bool = False) -> dict:
+                         wander: bool = False, animate: bool = False,
+                         progress: bool = True) -> dict:
     """Run ``episodes`` closed-loop episodes, print the metrics table, write plots to ``out``.
+
+    The table has the metrics that apply to the estimator (no CLEAR MOT rows for a
+    single-person one); ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
     """
@@ -89,23 +107,20 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     params = ep.make_params(cfg, point=follower)
     episode_fn = ep.make_episode(cfg)
     key = jax.random.PRNGKey(seed)
-    t0 = time.perf_counter()
     bs = min(episodes, batch_size or 64)
-    # Compile (one batch; montecarlo caches the compiled function for the run below).
-    montecarlo.evaluate(episode_fn, params, jax.random.fold_in(key, 1), bs, batch_size=bs,
-                        progress=False)
-    first_s = time.perf_counter() - t0
+    compile_s = montecarlo.warm_up(episode_fn, params, key, bs)
+    bar = montecarlo.progress_bar(episodes, disable=not progress)
     t1 = time.perf_counter()
-    res = montecarlo.evaluate(episode_fn, params, key, episodes, batch_size=bs,
-                              progress=True)
+    res = montecarlo.evaluate(episode_fn, params, key, episodes, batch_size=bs, progress=False,
+                              on_batch=lambda done, total: bar.update(done - bar.n))
+    bar.close()
     run_s = time.perf_counter() - t1
-    compile_s = max(first_s - run_s * bs / episodes, 0.0)
     m = {k: np.asarray(v) for k, v in res.metrics.items()}
     title = (f"person following ({layout}{', wandering user' if wander else ''}): {episodes} "
              f"episodes x {duration:.0f} s, estimator {estimator}"
              f" ({sensors}{', appearance' if appearance else ''}), follower point {follower}, "
              f"{people} distractors")
-    table = metrics_table(m, title)
+    table = metrics_table(m, title, multi_target=cfg.multi_target)
     print(table, file=stream)
     print(f"simulated in {run_s:.1f} s after {compile_s:.1f} s of compilation "
           f"({episodes * duration / run_s:.0f} simulated s per wall s)", file=stream)
