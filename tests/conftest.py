@@ -7,11 +7,17 @@ float32 tests cast their inputs explicitly.
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+# py-motmetrics 1.4 (a reference of the metric tests) calls ``np.asfarray``, which NumPy 2
+# removed, in ``iou_matrix`` and ``norm2squared_matrix``.
+if not hasattr(np, "asfarray"):
+    np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)
 
 
 @pytest.fixture(scope="session")

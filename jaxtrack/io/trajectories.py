@@ -21,6 +21,15 @@ Formats (``#`` comments and blank lines are skipped everywhere):
   `write_mot_csv` writes the 10-column form with ``-1`` in the four image columns, ``conf = 1``,
   ``z = 0``, ids as given (no shift to 1-based) and positions with the shortest decimal that
   reads back to the same float, so its output reads back identically.
+- **MOTChallenge image-plane files** (`read_mot_boxes`, format ``"mot2d"``): rows ``frame, id,
+  bb_left, bb_top, bb_width, bb_height, conf, ...`` with 9 (MOT16 and later ground truth) or 10
+  columns (MOT15, and every results file), separated by commas or whitespace. The boxes are
+  matched by IoU (py-motmetrics: ``1 - IoU <= 0.5``). Rows below ``min_confidence`` are dropped,
+  as py-motmetrics' loader does; MOT16+'s class and visibility columns are not interpreted.
+
+`evaluate_files` scores one pair of files, `evaluate_sequences` several, with an OVERALL row:
+CLEAR MOT, the identity metrics and HOTA, the columns of py-motmetrics' MOTChallenge summary
+(`format_summary`, `write_summary`).
 
 Every reader skips one header row whose first field is ``frame``, and raises
 `FileNotFoundError` for a missing file and `ValueError` naming the file and the 1-based line
@@ -40,14 +49,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import _checks
-from jaxtrack.metrics import clear_mot
+from jaxtrack.metrics import clear_mot, combine_hota, combine_identity, hota, identity_metrics
+from jaxtrack.metrics import combine_clear_mot as clear_mot_combine
 
 Array = jax.Array
 
-__all__ = ["Trajectories", "read_obsmat", "read_plain", "read_mot_csv", "write_mot_csv",
-           "read", "evaluate_files", "format_clear_mot", "FORMATS"]
+__all__ = ["Trajectories", "read_obsmat", "read_plain", "read_mot_csv", "read_mot_boxes",
+           "write_mot_csv", "read", "evaluate_files", "evaluate_sequences", "format_clear_mot",
+           "format_summary", "write_summary", "FORMATS", "SUMMARY_COLUMNS"]
 
-FORMATS = ("auto", "obsmat", "plain", "mot")
+FORMATS = ("auto", "obsmat", "plain", "mot", "mot2d")
 
 
 class Trajectories(NamedTuple):
@@ -56,7 +67,8 @@ class Trajectories(NamedTuple):
     Attributes:
       frames: [T] int32 frame numbers, sorted increasing, each once.
       ids: [T, P] int32 person ids (>= 0), -1 in empty slots; sorted within a frame.
-      pos: [T, P, 2] ground-plane positions (m); 0 in empty slots.
+      pos: [T, P, 2] ground-plane positions (m), or [T, P, 4] image boxes (left, top, width,
+        height; pixels) from `read_mot_boxes`; 0 in empty slots.
       mask: [T, P] bools, True where a slot holds a person.
       vel: [T, P, 2] velocities (m/s) when the file has them (obsmat), 0 in empty slots; else
         None.
@@ -125,6 +137,44 @@ def read_mot_csv(path, *, fps: float | None = None, max_people: int | None = Non
                      dtype)
 
 
+def read_mot_boxes(path, *, min_confidence: float | None = None, fps: float | None = None,
+                   max_people: int | None = None, dtype=None) -> Trajectories:
+    """Read an image-plane MOTChallenge file: rows ``frame, id, bb_left, bb_top, bb_width,
+    bb_height, conf, ...`` (9 or 10 columns; commas or whitespace).
+
+    Args:
+      path: file path.
+      min_confidence: drop rows whose ``conf`` (column 7) is below it (py-motmetrics'
+        MOTChallenge evaluation passes 1 for ground truth, whose ignored boxes have conf 0);
+        default: keep every row.
+      fps, max_people, dtype: as `read_obsmat`.
+
+    Returns:
+      `Trajectories` whose ``pos`` holds boxes [T, P, 4] (left, top, width, height).
+
+    Example:
+      >>> gt = read_mot_boxes("MOT17-02/gt/gt.txt", min_confidence=1)
+      >>> gt.pos.shape  # [T, P, 4]
+    """
+    if min_confidence is not None and not np.isfinite(min_confidence):
+        raise ValueError(f"min_confidence must be a finite number; got {min_confidence!r}")
+    rows, lines = _parse(path, "MOT image-plane", (9, 10), r"[\s,]+", boxes=True)
+    name = os.fspath(path)
+    if np.all(rows[:, 2:6] == -1):
+        raise ValueError(f"{name}: every box is -1 (a ground-plane MOT file, without image "
+                         "boxes)")
+    if np.any(rows[:, 4:6] < 0):
+        k = int(np.argmax(np.any(rows[:, 4:6] < 0, 1)))
+        raise ValueError(f"{name}, line {int(lines[k])}: negative box width or height")
+    if min_confidence is not None:
+        keep = rows[:, 6] >= min_confidence
+        if not np.any(keep):
+            raise ValueError(f"{name}: no row has conf >= {min_confidence}")
+        rows, lines = rows[keep], lines[keep]
+    return _assemble(path, rows[:, 0], rows[:, 1], rows[:, 2:6], None, lines, fps, max_people,
+                     dtype)
+
+
 def write_mot_csv(path, frames, ids, pos, mask) -> int:
     """Write trajectories or tracker output as 10-column MOTChallenge ground-plane CSV.
 
@@ -188,8 +238,9 @@ def write_mot_csv(path, frames, ids, pos, mask) -> int:
 
 
 def read(path, fmt: str = "auto", **kwargs) -> Trajectories:
-    """Read any supported file: ``fmt`` is ``"obsmat"``, ``"plain"``, ``"mot"`` or ``"auto"``
-    (8 columns: obsmat; 10 columns: MOT CSV; 4 columns: plain, which also reads the short MOT
+    """Read any supported file: ``fmt`` is ``"obsmat"``, ``"plain"``, ``"mot"``, ``"mot2d"`` or
+    ``"auto"`` (8 columns: obsmat; 10 columns: MOT CSV, or image-plane MOT when ``x, y, z`` are -1
+    in every row; 9 columns: image-plane MOT; 4 columns: plain, which also reads the short MOT
     form). Keyword arguments go to the reader.
 
     Example:
@@ -198,41 +249,194 @@ def read(path, fmt: str = "auto", **kwargs) -> Trajectories:
     _checks.check_options("fmt", (fmt,), FORMATS)
     if fmt == "auto":
         fmt = _sniff(path)
-    reader = {"obsmat": read_obsmat, "plain": read_plain, "mot": read_mot_csv}[fmt]
+    reader = {"obsmat": read_obsmat, "plain": read_plain, "mot": read_mot_csv,
+              "mot2d": read_mot_boxes}[fmt]
     return reader(path, **kwargs)
 
 
-def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "auto") -> dict:
-    """CLEAR MOT of a tracks file against a ground-truth file (`jaxtrack.metrics.clear_mot`).
+def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "auto", *,
+                   zero_distance: float = 2.0, min_confidence: float | None = None) -> dict:
+    """CLEAR MOT, identity metrics and HOTA of a tracks file against a ground-truth file.
 
     The frames evaluated are those present in either file; a frame missing from the tracks
     file has no hypotheses (its people are misses), a frame missing from the ground truth has
-    no objects (its tracks are false positives). Ground-truth ids are renumbered 0, 1, ... for
-    `clear_mot` (identity is unchanged). Convention ``"motmetrics"`` (see
-    `jaxtrack.metrics.clear_mot`).
+    no objects (its tracks are false positives). Ground-plane files are matched by Euclidean
+    distance (m); image-plane MOT files by ``1 - IoU``, so that MOTP is ``1 - IoU`` as
+    py-motmetrics reports it. CLEAR MOT uses the ``"motmetrics"`` convention
+    (`jaxtrack.metrics.clear_mot`), the identity metrics are py-motmetrics' and HOTA TrackEval's
+    (`jaxtrack.metrics.identity_metrics`, `jaxtrack.metrics.hota`).
 
     Args:
-      gt_path, tracks_path: files in any supported format.
-      threshold: largest distance (m) of a correspondence, > 0.
+      gt_path, tracks_path: files in any supported format, both ground plane or both image
+        plane.
+      threshold: largest distance of a correspondence, > 0: metres, or ``1 - IoU`` for boxes
+        (0.5 is MOTChallenge's IoU >= 0.5).
       fmt: format of both files, ``"auto"`` (each file sniffed, see `read`), ``"obsmat"``,
-        ``"plain"`` or ``"mot"``.
+        ``"plain"``, ``"mot"`` or ``"mot2d"``.
+      zero_distance: HOTA's distance of similarity 0 on the ground plane (m; TrackEval's 2.0).
+      min_confidence: image-plane ground truth only: drop boxes whose ``conf`` is below it.
 
     Returns:
-      dict with ``mota, motp, precision, recall`` (floats; NaN when undefined),
-      ``num_frames, num_objects, num_predictions, num_matches, num_switches, num_misses,
-      num_false_positives, num_fragmentations, mostly_tracked, partially_tracked, mostly_lost``
-      (ints) and ``threshold``.
+      dict with the `SUMMARY_COLUMNS` keys (``idf1, idp, idr, recall, precision,
+      num_unique_objects, mostly_tracked, partially_tracked, mostly_lost, num_false_positives,
+      num_misses, num_switches, num_fragmentations, mota, motp, hota``) plus ``deta, assa,
+      loca, num_frames, num_objects, num_predictions, num_matches, idtp, idfp, idfn,
+      threshold`` and ``plane`` (``"ground"`` or ``"image"``). Ratios are NaN when undefined.
 
     Example:
       >>> res = evaluate_files("gt.txt", "tracks.csv", threshold=0.5)
-      >>> print(format_clear_mot(res))
+      >>> print(format_summary({"seq": res}))
     """
+    return _row(_score_pair(gt_path, tracks_path, threshold, fmt, zero_distance,
+                            min_confidence))
+
+
+def evaluate_sequences(sequences, threshold: float = 0.5, fmt: str = "auto", *,
+                       zero_distance: float = 2.0, min_confidence: float | None = None) -> dict:
+    """`evaluate_files` over several sequences, plus an ``"OVERALL"`` row.
+
+    OVERALL pools the counts as py-motmetrics' ``generate_overall`` (MOTA, MOTP, IDF1 and the
+    rest from summed counts, each sequence keeping its own id matching) and HOTA as TrackEval's
+    ``combine_sequences``. Every sequence must be on the same plane.
+
+    Args:
+      sequences: mapping name -> (gt_path, tracks_path), or a sequence of such pairs (named by
+        the ground truth's parent folder, or its file name when that repeats).
+      threshold, fmt, zero_distance, min_confidence: as `evaluate_files`.
+
+    Returns:
+      dict name -> row (as `evaluate_files`), in the given order, then ``"OVERALL"``.
+
+    Example:
+      >>> rows = evaluate_sequences({"TUD-Campus": ("TUD-Campus/gt.txt", "TUD-Campus/test.txt")})
+      >>> print(format_summary(rows))
+    """
+    if isinstance(sequences, dict):
+        named = list(sequences.items())
+    else:
+        pairs = [tuple(p) for p in sequences]
+        names = [os.path.basename(os.path.dirname(os.path.abspath(os.fspath(g))))
+                 for g, _ in pairs]
+        if len(set(names)) != len(names):
+            names = [os.fspath(g) for g, _ in pairs]
+        named = list(zip(names, pairs))
+    if not named:
+        raise ValueError("sequences is empty: give at least one (gt, tracks) pair")
+    scored = []
+    for name, pair in named:
+        if len(pair) != 2:
+            raise ValueError(f"sequence {name!r}: expected a (gt, tracks) pair; got {pair!r}")
+        scored.append((name, _score_pair(pair[0], pair[1], threshold, fmt, zero_distance,
+                                         min_confidence)))
+    planes = {sc["plane"] for _, sc in scored}
+    if len(planes) > 1:
+        raise ValueError("the sequences mix ground-plane and image-plane files")
+    rows = {name: _row(sc) for name, sc in scored}
+    pooled = dict(scored[0][1])
+    pooled["clear"] = clear_mot_combine(_stack([sc["clear"]._replace(frames=None)
+                                                for _, sc in scored]))
+    pooled["identity"] = combine_identity(_stack([sc["identity"] for _, sc in scored]))
+    pooled["hota"] = combine_hota(_stack([sc["hota"] for _, sc in scored]))
+    pooled["num_frames"] = sum(sc["num_frames"] for _, sc in scored)
+    rows["OVERALL"] = _row(jax.device_get(pooled))
+    return rows
+
+
+#: The columns of py-motmetrics' MOTChallenge summary, and HOTA: (key, header, kind).
+SUMMARY_COLUMNS = (
+    ("idf1", "IDF1", "%"), ("idp", "IDP", "%"), ("idr", "IDR", "%"), ("recall", "Rcll", "%"),
+    ("precision", "Prcn", "%"), ("num_unique_objects", "GT", "int"),
+    ("mostly_tracked", "MT", "int"), ("partially_tracked", "PT", "int"),
+    ("mostly_lost", "ML", "int"), ("num_false_positives", "FP", "int"),
+    ("num_misses", "FN", "int"), ("num_switches", "IDs", "int"),
+    ("num_fragmentations", "FM", "int"), ("mota", "MOTA", "%"), ("motp", "MOTP", "float"),
+    ("hota", "HOTA", "%"),
+)
+
+
+def format_summary(rows: dict) -> str:
+    """py-motmetrics' MOTChallenge summary table of `evaluate_sequences` (or of a dict name ->
+    `evaluate_files` row): percentages with one decimal, MOTP with three (``1 - IoU`` for
+    boxes, metres on the ground plane).
+
+    Example:
+      >>> print(format_summary(evaluate_sequences(pairs)))
+    """
+    if not rows:
+        raise ValueError("rows is empty")
+    header = [""] + [h for _, h, _ in SUMMARY_COLUMNS]
+    body = []
+    for name, row in rows.items():
+        cells = [str(name)]
+        for key, _, kind in SUMMARY_COLUMNS:
+            v = row[key]
+            if kind == "int":
+                cells.append(str(int(v)))
+            elif not np.isfinite(v):
+                cells.append("nan")
+            elif kind == "%":
+                cells.append(f"{100 * v:.1f}%")
+            else:
+                cells.append(f"{v:.3f}")
+        body.append(cells)
+    widths = [max(len(r[i]) for r in [header] + body) for i in range(len(header))]
+    lines = [" ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                      for i, (c, w) in enumerate(zip(r, widths))) for r in [header] + body]
+    return "\n".join(lines)
+
+
+def write_summary(rows: dict, csv_path=None, json_path=None) -> None:
+    """Write `evaluate_sequences` rows as CSV (one line per sequence, the `SUMMARY_COLUMNS`
+    keys plus ``deta, assa, loca``; full precision) and / or JSON (every field of every row).
+
+    Example:
+      >>> write_summary(rows, "summary.csv", "summary.json")
+    """
+    import csv
+    import json
+
+    keys = [k for k, _, _ in SUMMARY_COLUMNS] + ["deta", "assa", "loca"]
+    if csv_path is not None:
+        with open(os.fspath(csv_path), "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["name"] + keys)
+            for name, row in rows.items():
+                w.writerow([name] + [row[k] for k in keys])
+    if json_path is not None:
+        def plain(v):
+            if isinstance(v, float) and not np.isfinite(v):
+                return None
+            return v
+
+        with open(os.fspath(json_path), "w") as f:
+            json.dump({name: {k: plain(v) for k, v in row.items()} for name, row in rows.items()},
+                      f, indent=2)
+
+
+def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confidence):
+    """Read two files and run the three metrics; numpy results and the file facts."""
     if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)) \
             or not np.isfinite(threshold) or threshold <= 0:
-        raise ValueError(f"threshold must be a positive number (m); got {threshold!r}")
+        raise ValueError(f"threshold must be a positive number; got {threshold!r}")
+    if isinstance(zero_distance, bool) or not isinstance(zero_distance, (int, float, np.number)) \
+            or not np.isfinite(zero_distance) or zero_distance <= 0:
+        raise ValueError(f"zero_distance must be a positive number (m); got {zero_distance!r}")
     _checks.check_options("fmt", (fmt,), FORMATS)
-    gt = read(gt_path, fmt)
-    hyp = read(tracks_path, fmt)
+    gt_fmt = _sniff(gt_path) if fmt == "auto" else fmt
+    hyp_fmt = _sniff(tracks_path) if fmt == "auto" else fmt
+    # A 10-column MOT file holds boxes and ground-plane positions (MOT15 "3D" ground truth);
+    # paired with an image-only file it is read for its boxes.
+    image = "mot2d" in (gt_fmt, hyp_fmt)
+    if image:
+        for path, f in ((gt_path, gt_fmt), (tracks_path, hyp_fmt)):
+            if f not in ("mot", "mot2d"):
+                raise ValueError(f"{os.fspath(path)!r} is {f}, without the image boxes that the "
+                                 f"other, image-plane MOT file needs")
+        gt = read_mot_boxes(gt_path, min_confidence=min_confidence)
+        hyp = read_mot_boxes(tracks_path)
+    else:
+        gt = read(gt_path, gt_fmt)
+        hyp = read(tracks_path, hyp_fmt)
     frames = np.union1d(np.asarray(gt.frames), np.asarray(hyp.frames))
     gt_ids, gt_pos = _on_frames(gt, frames)
     hyp_ids, hyp_pos = _on_frames(hyp, frames)
@@ -240,16 +444,36 @@ def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "aut
     dense = dense.reshape(gt_ids.shape) - (1 if np.any(gt_ids < 0) else 0)
     gt_ids = np.where(gt_ids >= 0, dense, -1).astype(np.int32)
     num_ids = max(int(gt_ids.max()) + 1, 1)
-    res = jax.device_get(clear_mot(jnp.asarray(gt_ids), jnp.asarray(gt_pos), None,
-                                   jnp.asarray(hyp_ids), jnp.asarray(hyp_pos), None,
-                                   float(threshold), num_ids=num_ids))
-    out = {name: float(getattr(res, name)) for name in ("mota", "motp", "precision", "recall")}
-    out["num_frames"] = int(len(frames))
+    num_hyp_ids = max(int(np.unique(hyp_ids[hyp_ids >= 0]).size), 1)
+    distance = "iou" if image else "euclidean"
+    args = (jnp.asarray(gt_ids), jnp.asarray(gt_pos), None, jnp.asarray(hyp_ids),
+            jnp.asarray(hyp_pos), None)
+    clear = clear_mot(*args, float(threshold), num_ids=num_ids, distance=distance)
+    ident = identity_metrics(*args, float(threshold), distance=distance, max_ids=num_ids,
+                             max_hyp_ids=num_hyp_ids)
+    h = hota(*args, similarity=distance, zero_distance=float(zero_distance), max_ids=num_ids,
+             max_hyp_ids=num_hyp_ids)
+    return jax.device_get(dict(clear=clear._replace(frames=None), identity=ident, hota=h,
+                               num_frames=len(frames), threshold=float(threshold),
+                               plane="image" if image else "ground"))
+
+
+def _stack(results):
+    return jax.tree.map(lambda *a: np.stack(a), *results)
+
+
+def _row(scored) -> dict:
+    c, i, h = scored["clear"], scored["identity"], scored["hota"]
+    out = {name: float(getattr(c, name)) for name in ("mota", "motp", "precision", "recall")}
     for name in ("num_objects", "num_predictions", "num_matches", "num_switches", "num_misses",
                  "num_false_positives", "num_fragmentations", "mostly_tracked",
-                 "partially_tracked", "mostly_lost"):
-        out[name] = int(getattr(res, name))
-    out["threshold"] = float(threshold)
+                 "partially_tracked", "mostly_lost", "num_unique_objects"):
+        out[name] = int(getattr(c, name))
+    out.update(idf1=float(i.idf1), idp=float(i.idp), idr=float(i.idr), idtp=int(i.idtp),
+               idfp=int(i.idfp), idfn=int(i.idfn))
+    out.update(hota=float(h.hota), deta=float(h.deta), assa=float(h.assa), loca=float(h.loca))
+    out.update(num_frames=int(scored["num_frames"]), threshold=float(scored["threshold"]),
+               plane=str(scored["plane"]))
     return out
 
 
@@ -306,17 +530,34 @@ def _sniff(path):
         fields = re.split(r"[\s,]+", text)
         if fields[0].lower() == "frame":
             continue
-        fmt = {8: "obsmat", 10: "mot", 4: "plain"}.get(len(fields))
+        fmt = {8: "obsmat", 10: "mot", 9: "mot2d", 4: "plain"}.get(len(fields))
         if fmt is None:
             raise ValueError(f"{name}, line {i}: cannot tell the format from {len(fields)} "
-                             "columns (obsmat has 8, MOT CSV 10, plain / short MOT 4)")
+                             "columns (obsmat has 8, MOT CSV 10, image-plane MOT 9 or 10, "
+                             "plain / short MOT 4)")
+        if fmt == "mot" and _image_only(lines):
+            fmt = "mot2d"
         return fmt
     raise ValueError(f"{name}: no data rows")
 
 
-def _parse(path, what, ncols, sep):
-    """Rows as a float64 array [N, 4 or 8] (MOT rows reduced to frame, id, x, y) and the line
-    number of each row."""
+def _image_only(lines):
+    """Every 10-column data row has x = y = z = -1 (an image-plane MOT file)."""
+    for _, text in _data_lines(lines):
+        fields = re.split(r"[\s,]+", text)
+        if fields[0].lower() == "frame":
+            continue
+        try:
+            if len(fields) != 10 or any(float(v) != -1 for v in fields[7:10]):
+                return False
+        except ValueError:
+            return False
+    return True
+
+
+def _parse(path, what, ncols, sep, boxes=False):
+    """Rows as a float64 array [N, 4 or 8] (MOT rows reduced to frame, id, x, y; with ``boxes``
+    the first 7 columns, frame, id, box and conf) and the line number of each row."""
     name, lines = _open_lines(path)
     rows, numbers = [], []
     first = True
@@ -335,7 +576,10 @@ def _parse(path, what, ncols, sep):
             values = [float(v) for v in fields]
         except ValueError:
             raise ValueError(f"{name}, line {i}: not a number in {text!r}") from None
-        if len(fields) == 10:
+        if boxes:
+            values = values[:7]
+            image_only = False
+        elif len(fields) == 10:
             image_only &= values[7] == values[8] == values[9] == -1
             values = [values[0], values[1], values[7], values[8]]
         else:
@@ -386,7 +630,7 @@ def _assemble(path, frame, pid, xy, vel, lines, fps, max_people, dtype):
     slot = np.arange(len(frame)) - starts[row_t]
     ids = np.full((T, P), -1, np.int32)
     ids[row_t, slot] = pid
-    pos = np.zeros((T, P, 2))
+    pos = np.zeros((T, P, xy.shape[1]))
     pos[row_t, slot] = xy
     mask = ids >= 0
     dtype = jnp.result_type(float) if dtype is None else dtype
@@ -401,11 +645,11 @@ def _assemble(path, frame, pid, xy, vel, lines, fps, max_people, dtype):
 
 
 def _on_frames(traj, frames):
-    """ids [T, P] and positions [T, P, 2] (numpy) of ``traj`` on the sorted ``frames``, which
+    """ids [T, P] and positions [T, P, d] (numpy) of ``traj`` on the sorted ``frames``, which
     contain ``traj.frames``; frames it lacks are empty."""
     P = max(traj.ids.shape[1], 1)
     ids = np.full((len(frames), P), -1, np.int32)
-    pos = np.zeros((len(frames), P, 2))
+    pos = np.zeros((len(frames), P, traj.pos.shape[2]))
     where = np.searchsorted(frames, np.asarray(traj.frames))
     ids[where, :traj.ids.shape[1]] = np.asarray(traj.ids)
     pos[where, :traj.ids.shape[1]] = np.asarray(traj.pos)
