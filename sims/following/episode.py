@@ -21,6 +21,10 @@ Metrics (per episode, `summarize`; the frames are ``T = duration / control_dt``)
 - ``mota``, ``motp``, ``mot_switches`` (multi-target estimators; NaN otherwise): CLEAR MOT of
   the confirmed tracks, with as ground truth the people inside the laser's field of view and range
   and not fully occluded (some beam's return is one of their legs), threshold 0.5 m;
+- ``idf1`` (the identity F1 at the same threshold) and ``hota`` (similarity
+  ``max(0, 1 - d / 1 m)``, so that its 0.5 level is the 0.5 m threshold) of the same tracks;
+  ``mot_invalid`` counts track presences left out because an episode used more than
+  `MAX_TRACK_IDS` track ids (0 in every run measured);
 - ``near_fraction``: fraction of frames any person's centre is within 0.45 m (Hall's intimate
   zone) of the robot's body (its collision disc);
 - ``stop_fraction``: fraction of frames the safety stop held the robot.
@@ -53,6 +57,8 @@ __all__ = ["EpisodeConfig", "EpisodeParams", "State", "Frame", "make_params", "m
 LOST_DISTANCE = 0.5
 INTIMATE = 0.45
 MOT_THRESHOLD = 0.5
+#: Static bound on the distinct track ids of one episode for the identity metrics and HOTA.
+MAX_TRACK_IDS = 512
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -369,10 +375,18 @@ def summarize(config: EpisodeConfig, frames: Frame) -> dict:
         hyp_ids = jnp.where(f.hyp_mask, f.hyp_ids, -1)
         mot = jmetrics.clear_mot(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos, f.hyp_mask,
                                  MOT_THRESHOLD, num_ids=P)
-        out.update(mota=mot.mota, motp=mot.motp, mot_switches=mot.num_switches)
+        ident = jmetrics.identity_metrics(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos,
+                                          f.hyp_mask, MOT_THRESHOLD, max_ids=P,
+                                          max_hyp_ids=MAX_TRACK_IDS)
+        h = jmetrics.hota(gt_ids, f.people, f.visible, hyp_ids, f.hyp_pos, f.hyp_mask,
+                          zero_distance=2 * MOT_THRESHOLD, max_ids=P, max_hyp_ids=MAX_TRACK_IDS)
+        out.update(mota=mot.mota, motp=mot.motp, mot_switches=mot.num_switches,
+                   idf1=ident.idf1.astype(dtype), hota=h.hota.astype(dtype),
+                   mot_invalid=ident.num_invalid)
     else:
-        out.update(mota=jnp.asarray(jnp.nan, dtype), motp=jnp.asarray(jnp.nan, dtype),
-                   mot_switches=jnp.int32(-1))
+        nan = jnp.asarray(jnp.nan, dtype)
+        out.update(mota=nan, motp=nan, mot_switches=jnp.int32(-1), idf1=nan, hota=nan,
+                   mot_invalid=jnp.int32(0))
     return out
 
 

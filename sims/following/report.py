@@ -17,11 +17,13 @@ _ROWS = (("following_rms", "following RMS error [m]", "{:.3f}"),
          ("mota", "MOTA", "{:.2%}"),
          ("motp", "MOTP [m]", "{:.3f}"),
          ("mot_switches", "MOT id switches [per episode]", "{:.2f}"),
+         ("idf1", "IDF1", "{:.2%}"),
+         ("hota", "HOTA", "{:.2%}"),
          ("near_fraction", "someone within 0.45 m [% of time]", "{:.2%}"),
          ("stop_fraction", "safety stop [% of time]", "{:.2%}"))
 # CLEAR MOT scores a multi-target tracker's tracks; a single-person estimator has none (its
 # episodes hold NaN and -1 there, `sims.following.episode`).
-_MOT_KEYS = ("mota", "motp", "mot_switches")
+_MOT_KEYS = ("mota", "motp", "mot_switches", "idf1", "hota")
 
 
 def metrics_table(metrics: dict, title: str = "", multi_target: bool | None = None) -> str:

@@ -133,7 +133,9 @@ def test_metrics_match_direct_recomputation(run):
                 f.people[t, gt], f.hyp_pos[t, hy], max_d2=ep.MOT_THRESHOLD**2)
             acc.update(gt.tolist(), f.hyp_ids[t, hy].tolist(), np.sqrt(dist))
         ref = motmetrics.metrics.create().compute(acc, metrics=["mota", "motp",
-                                                                "num_switches"])
+                                                                "num_switches", "idf1"])
+        np.testing.assert_allclose(got["idf1"], ref["idf1"].iloc[0], atol=1e-5)
+        assert int(got["mot_invalid"]) == 0
         np.testing.assert_allclose(got["mota"], ref["mota"].iloc[0], atol=1e-5)
         if np.isfinite(ref["motp"].iloc[0]):
             np.testing.assert_allclose(got["motp"], ref["motp"].iloc[0], atol=1e-5)
