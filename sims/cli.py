@@ -120,13 +120,26 @@ def main(argv: list[str] | None = None) -> int:
                           "from a map; laser people within 0.3 m of one are dropped")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", type=Path, required=True, help="output directory")
-    ev = sub.add_parser("evaluate", help="CLEAR MOT of a tracks file against ground truth")
-    ev.add_argument("--gt", type=Path, required=True,
-                    help="ground truth (obsmat.txt, frame id x y, or MOT CSV)")
-    ev.add_argument("--tracks", type=Path, required=True, help="tracks (MOT CSV)")
-    ev.add_argument("--threshold", type=float, default=0.5, help="match distance (m)")
-    ev.add_argument("--format", choices=("auto", "obsmat", "plain", "mot"), default="auto",
-                    help="format of both files (auto: sniffed)")
+    ev = sub.add_parser("evaluate", help="py-motmetrics' MOTChallenge summary (CLEAR MOT, IDF1, "
+                                         "HOTA) of tracks files against ground truth")
+    ev.add_argument("--gt", type=Path, nargs="+", required=True,
+                    help="ground truth per sequence (obsmat.txt, frame id x y, MOT CSV, or "
+                         "image-plane MOTChallenge gt.txt)")
+    ev.add_argument("--tracks", type=Path, nargs="+", required=True,
+                    help="tracks per sequence, in the order of --gt")
+    ev.add_argument("--names", nargs="+", default=None,
+                    help="sequence names (default: each ground truth's folder)")
+    ev.add_argument("--threshold", type=float, default=0.5,
+                    help="match distance: metres on the ground plane, 1 - IoU for image boxes")
+    ev.add_argument("--format", choices=("auto", "obsmat", "plain", "mot", "mot2d"),
+                    default="auto", help="format of every file (auto: sniffed per file)")
+    ev.add_argument("--zero-distance", type=float, default=2.0,
+                    help="HOTA on the ground plane: the distance of similarity 0 (m)")
+    ev.add_argument("--min-confidence", type=float, default=None,
+                    help="image-plane ground truth: drop boxes whose conf is below it "
+                         "(MOTChallenge: 1)")
+    ev.add_argument("--out", type=Path, default=None,
+                    help="directory for summary.csv and summary.json")
     args = parser.parse_args(argv)
     if args.command == "track":
         if args.chunk < 1 or args.max_detections < 1:
@@ -151,14 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.exit(2, f"jaxtrack track: {err}\n")
         return 0
     if args.command == "evaluate":
-        if not args.threshold > 0:
-            parser.error("--threshold must be positive")
-        from jaxtrack.io import trajectories
-
-        result = trajectories.evaluate_files(args.gt, args.tracks, threshold=args.threshold,
-                                             fmt=args.format)
-        print(trajectories.format_clear_mot(result))
-        return 0
+        return _evaluate(parser, args)
     if args.command == "demo":
         if args.which != "filters":
             if args.episodes is not None or args.steps is not None:
@@ -207,6 +213,63 @@ def main(argv: list[str] | None = None) -> int:
                        temperature=args.temperature, turn_prediction=args.turn_prediction,
                        heading_gain=args.heading_gain)
     return 0
+
+
+def _evaluate(parser, args) -> int:
+    """``jaxtrack evaluate``: every user error is one line and exit code 2."""
+    import math as _math
+
+    if len(args.gt) != len(args.tracks):
+        parser.error(f"--gt and --tracks must name as many files; got {len(args.gt)} and "
+                     f"{len(args.tracks)}")
+    if args.names is not None and len(args.names) != len(args.gt):
+        parser.error(f"--names must name every sequence; got {len(args.names)} for "
+                     f"{len(args.gt)}")
+    if args.names is not None and len(set(args.names)) != len(args.names):
+        parser.error("--names must be distinct")
+    for flag, value in (("--threshold", args.threshold), ("--zero-distance", args.zero_distance)):
+        if not (_math.isfinite(value) and value > 0):
+            parser.error(f"{flag} must be a finite positive number; got {value}")
+    if args.min_confidence is not None and not _math.isfinite(args.min_confidence):
+        parser.error(f"--min-confidence must be finite; got {args.min_confidence}")
+    for path in list(args.gt) + list(args.tracks):
+        if not path.is_file():
+            parser.error(f"no such file: {path}")
+    if args.out is not None:
+        _check_writable(parser, args.out)
+    from jaxtrack.io import trajectories
+
+    pairs = list(zip(args.gt, args.tracks))
+    sequences = dict(zip(args.names, pairs)) if args.names else pairs
+    try:
+        rows = trajectories.evaluate_sequences(sequences, threshold=args.threshold,
+                                               fmt=args.format, zero_distance=args.zero_distance,
+                                               min_confidence=args.min_confidence)
+    except (ValueError, OSError) as err:
+        parser.exit(2, f"jaxtrack evaluate: {err}\n")
+    if len(rows) == 2:  # one sequence: its OVERALL row repeats it
+        rows.pop("OVERALL")
+    plane = next(iter(rows.values()))["plane"]
+    unit = "1 - IoU" if plane == "image" else "m"
+    print(f"{len(pairs)} sequence(s), {plane} plane, threshold {args.threshold:g} ({unit}); "
+          f"MOTP in {unit}")
+    print(trajectories.format_summary(rows))
+    if args.out is not None:
+        trajectories.write_summary(rows, args.out / "summary.csv", args.out / "summary.json")
+        print(f"wrote {args.out / 'summary.csv'} and {args.out / 'summary.json'}")
+    return 0
+
+
+def _check_writable(parser, out: Path) -> None:
+    """Create ``out`` if needed and check that a file can be written there, before any work."""
+    import tempfile
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        parser.error(f"--out {out} is not a writable directory ({err.strerror or err})")
 
 
 def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None = None,

@@ -116,7 +116,7 @@ def test_track_rejects_bad_arguments(recording):
         replay.track(laser._replace(valid=np.zeros_like(laser.valid)), progress=False)
 
 
-def test_cli_track_writes_a_mot_csv_and_evaluate_prints_clear_mot(recording, written,
+def test_cli_track_writes_a_mot_csv_and_evaluate_prints_the_summary(recording, written,
                                                                   memory_tracks, tmp_path,
                                                                   capsys):
     sc, rec, (_, _, det) = recording
@@ -150,9 +150,9 @@ def test_cli_track_writes_a_mot_csv_and_evaluate_prints_clear_mot(recording, wri
     with redirect_stdout(buf):
         assert cli.main(["evaluate", "--gt", str(gt), "--tracks", str(out / "tracks.csv"),
                          "--threshold", "0.5"]) == 0
-    expected = trajectories.format_clear_mot(
-        trajectories.evaluate_files(gt, out / "tracks.csv", threshold=0.5))
-    assert buf.getvalue().strip() == expected.strip()
+    row = trajectories.evaluate_files(gt, out / "tracks.csv", threshold=0.5)
+    expected = trajectories.format_summary({gt.parent.name: row})
+    assert buf.getvalue().splitlines()[1:] == expected.splitlines()
 
 
 def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
