@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import io
 import math
 import sys
@@ -292,17 +293,10 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     import jax
 
     from jaxtrack import montecarlo
-    from sims.humanoid import episode, scene
+    from sims.humanoid import episode
 
-    from jaxtrack.tracking import humanoid
-
-    sc = scene.build(*resolution)
-    heading = humanoid.HeadingConfig(gain=heading_gain, turn_prediction=turn_prediction)
-    trackers = {"pf": humanoid.DepthPFConfig(num_particles=particles, heading=heading),
-                "pf3": humanoid.DepthPF3Config(num_particles=particles),
-                "ukf": humanoid.CentroidUKFConfig(heading=heading)}
-    cfg = episode.EpisodeConfig(sc, tracker=trackers[tracker], num_frames=frames)
-    episode_fn = episode.make_episode(cfg)
+    episode_fn = _humanoid_episode(tracker, particles, frames, tuple(resolution), heading_gain,
+                                   turn_prediction)
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
@@ -328,6 +322,23 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
         _write_outputs(Path(out), results, tracker)
     return {"table": table, "metrics": results, "compile_seconds": compile_s,
             "run_seconds": run_s}
+
+
+@functools.lru_cache(maxsize=8)
+def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction):
+    """The episode function of a humanoid-reach run. Cached: runs with the same settings in a
+    process share it, and so the batches `jaxtrack.montecarlo` compiled for it (it caches them
+    by function)."""
+    from jaxtrack.tracking import humanoid
+    from sims.humanoid import episode, scene
+
+    heading = humanoid.HeadingConfig(gain=heading_gain, turn_prediction=turn_prediction)
+    trackers = {"pf": humanoid.DepthPFConfig(num_particles=particles, heading=heading),
+                "pf3": humanoid.DepthPF3Config(num_particles=particles),
+                "ukf": humanoid.CentroidUKFConfig(heading=heading)}
+    cfg = episode.EpisodeConfig(scene.build(*resolution), tracker=trackers[tracker],
+                                num_frames=frames)
+    return episode.make_episode(cfg)
 
 
 # What mujoco.mjx prints (to stdout, from ``mujoco/mjx/warp/__init__.py``) when its optional GPU

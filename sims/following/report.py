@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from pathlib import Path
@@ -104,10 +105,9 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     from jaxtrack import montecarlo
     from sims.following import episode as ep
 
-    cfg = ep.scenario(layout, estimator_config(estimator, sensors, particles, appearance),
-                      wander=wander, distractors=people, duration=duration)
+    cfg, episode_fn = _episode(layout, estimator, sensors, particles, appearance, wander,
+                               people, float(duration))
     params = ep.make_params(cfg, point=follower)
-    episode_fn = ep.make_episode(cfg)
     key = jax.random.PRNGKey(seed)
     bs = min(episodes, batch_size or 64)
     compile_s = montecarlo.warm_up(episode_fn, params, key, bs)
@@ -130,6 +130,18 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
         write_plots(Path(out), cfg, params, key, animate=animate)
         np.savez(Path(out) / "metrics.npz", **m)
     return {"table": table, "metrics": m, "compile_seconds": compile_s, "run_seconds": run_s}
+
+
+@functools.lru_cache(maxsize=8)
+def _episode(layout, estimator, sensors, particles, appearance, wander, people, duration):
+    """``(config, episode function)`` of a run's scenario. Cached: runs of one scenario in a
+    process share the episode function, and so the batches `jaxtrack.montecarlo` compiled
+    for it (it caches them by function)."""
+    from sims.following import episode as ep
+
+    cfg = ep.scenario(layout, estimator_config(estimator, sensors, particles, appearance),
+                      wander=wander, distractors=people, duration=duration)
+    return cfg, ep.make_episode(cfg)
 
 
 def draw_floor(ax, sc) -> None:
