@@ -1,5 +1,5 @@
-"""Bayesian filters: Kalman, extended and unscented Kalman, particle, heading filter."""
+"""Bayesian filters: Kalman, extended and unscented Kalman, IMM, particle, heading filter."""
 
-from jaxtrack.filters import ekf, heading, kalman, particle, ukf
+from jaxtrack.filters import ekf, heading, imm, kalman, particle, ukf
 
-__all__ = ["kalman", "ekf", "ukf", "particle", "heading"]
+__all__ = ["kalman", "ekf", "ukf", "imm", "particle", "heading"]
