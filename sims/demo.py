@@ -65,16 +65,16 @@ def run(which: str = "all", humanoid: HumanoidSize = HumanoidSize(),
         raise ValueError(f"which must be 'all', 'humanoid' or 'following'; got {which!r}")
     from sims.cli import run_humanoid_reach
     from sims.following.report import run_person_following
+    from sims.humanoid.episode import EpisodeConfig
 
     t0 = time.perf_counter()
     out = {}
     if which in ("all", "humanoid"):
         h = humanoid
-        seconds = h.frames * 0.25
-        print(f"== humanoid reach (seed 000): 15 tasks x {h.episodes} episodes of {h.frames} "
-              f"frames ({seconds:.0f} s at 4 Hz), pf tracker with {h.particles} particles on a "
-              f"{h.resolution[0]}x{h.resolution[1]} depth image (`jaxtrack run humanoid-reach` "
-              f"runs 64 episodes per task) ==", file=stream, flush=True)
+        seconds = h.frames * EpisodeConfig.frame_dt
+        print(f"== humanoid reach (seed 000): 15 tasks x {h.episodes} episodes x {h.frames} "
+              f"frames ({seconds:.0f} s), pf tracker with {h.particles} particles, "
+              f"{h.resolution[0]}x{h.resolution[1]} depth image ==", file=stream, flush=True)
         out["humanoid"] = run_humanoid_reach(h.episodes, "pf", seed=seed,
                                              particles=h.particles, frames=h.frames,
                                              resolution=tuple(h.resolution), stream=stream,
@@ -83,15 +83,16 @@ def run(which: str = "all", humanoid: HumanoidSize = HumanoidSize(),
             print(file=stream)
     if which in ("all", "following"):
         f = following
+        particles = f" ({f.particles} particles)" if f.estimator.startswith("pf") else ""
         print(f"== person following (seeds 001-004): {f.episodes} episodes x {f.duration:.0f} s "
-              f"in the shop, estimator {f.estimator}"
-              f"{f' ({f.particles} particles)' if f.estimator.startswith('pf') else ''}, "
-              f"follower point A, {f.people} distractors (`jaxtrack run person-following` runs "
-              f"256 episodes) ==", file=stream, flush=True)
+              f"in the shop, {f.estimator} estimator{particles}, {f.people} distractors ==",
+              file=stream, flush=True)
         out["following"] = run_person_following(
             f.episodes, f.estimator, "A", f.people, seed=seed, duration=f.duration,
             particles=f.particles, batch_size=f.batch_size, stream=stream, layout="shop",
             progress=progress)
     out["seconds"] = time.perf_counter() - t0
-    print(f"demo finished in {out['seconds']:.0f} s, compilation included", file=stream)
+    print(f"demo finished in {out['seconds']:.0f} s, compilation included. Full size: "
+          "jaxtrack run humanoid-reach (64 episodes per task), jaxtrack run person-following "
+          "(256 episodes)", file=stream)
     return out

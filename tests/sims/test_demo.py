@@ -51,8 +51,8 @@ def test_scene_demo_prints_both_tables_with_a_header_each():
     text = stream.getvalue()
     headers = [line for line in text.splitlines() if line.startswith("== ")]
     assert len(headers) == 2
-    assert "15 tasks x 1 episodes of 4 frames" in headers[0] and "32x24" in headers[0]
-    assert "2 episodes x 1 s in the shop, estimator kf" in headers[1]
+    assert "15 tasks x 1 episodes x 4 frames" in headers[0] and "32x24" in headers[0]
+    assert "2 episodes x 1 s in the shop, kf estimator" in headers[1]
     assert "P3 +90" in text and "frames to stop" in text          # the humanoid's table
     assert "following RMS error [m]" in text                        # the following table
     assert "MOTA" not in text and "IDF1" not in text and "nan" not in text  # kf: one person
