@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxtrack import _checks
+
 Array = jax.Array
 
 DISTANCES = ("euclidean", "iou")
@@ -83,10 +85,44 @@ def dense_ids(ids: Array, present: Array, size: int) -> tuple[Array, Array]:
     return jnp.where(valid, index, 0).astype(jnp.int32), valid
 
 
+def check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask):
+    """Shapes and dtypes of the common metric inputs; returns (T, G, H)."""
+    _checks.check_ndim("gt_ids", gt_ids, 2, "[T, G] object ids")
+    T, G = _checks.shape_of(gt_ids)
+    _checks.check_ndim("gt_pos", gt_pos, 3, "[T, G, d] object positions")
+    d = _checks.shape_of(gt_pos)[2]
+    _checks.check_shape("gt_pos", gt_pos, (T, G, d), "[T, G, d] object positions")
+    _checks.check_ndim("hyp_ids", hyp_ids, 2, "[T, H] hypothesis ids")
+    H = _checks.shape_of(hyp_ids)[1]
+    _checks.check_shape("hyp_ids", hyp_ids, (T, H), f"[T, H] hypothesis ids with T = {T}")
+    _checks.check_shape("hyp_pos", hyp_pos, (T, H, d), f"[T, H, d] positions with d = {d}")
+    if gt_mask is not None:
+        _checks.check_shape("gt_mask", gt_mask, (T, G), "[T, G] bools")
+    if hyp_mask is not None:
+        _checks.check_shape("hyp_mask", hyp_mask, (T, H), "[T, H] bools")
+    for name, ids in (("gt_ids", gt_ids), ("hyp_ids", hyp_ids)):
+        if not jnp.issubdtype(jnp.result_type(ids), jnp.integer):
+            raise ValueError(f"{name} must be integers; got dtype {jnp.result_type(ids)}")
+    for name, pos in (("gt_pos", gt_pos), ("hyp_pos", hyp_pos)):
+        if not jnp.issubdtype(jnp.result_type(pos), jnp.floating):
+            raise ValueError(f"{name} must be floating point; got dtype {jnp.result_type(pos)}")
+    return T, G, H
+
+
+def check_id_bound(name, value, default, ids, mask):
+    """A static bound on the distinct ids (default ``default``), checked when concrete."""
+    if value is None:
+        value = max(int(default), 1)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive int; got {value!r}")
+    distinct = count_distinct(ids, mask)
+    if distinct is not None and distinct > value:
+        raise ValueError(f"{name} = {value} is smaller than the {distinct} distinct ids given")
+    return int(value)
+
+
 def count_distinct(ids, mask) -> int | None:
     """Number of distinct present ids when concrete, else None."""
-    from jaxtrack import _checks
-
     if not (_checks.is_concrete(ids) and (mask is None or _checks.is_concrete(mask))):
         return None
     ids = np.asarray(ids)

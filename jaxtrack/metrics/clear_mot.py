@@ -171,7 +171,7 @@ def clear_mot(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Arra
     """
     if not isinstance(convention, str) or convention not in CONVENTIONS:
         raise ValueError(f"unknown convention {convention!r}; expected one of {list(CONVENTIONS)}")
-    T, G, H = _check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
+    T, G, H = _pairs.check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
     _pairs.check_distance(distance, np.shape(gt_pos)[2])
     if num_ids is None:
         num_ids = max(T * G, 1)
@@ -392,29 +392,6 @@ def _finish(sums, frames):
         frames=frames,
         **{name: sums[name] for name in _COUNTS},
     )
-
-
-def _check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask):
-    _checks.check_ndim("gt_ids", gt_ids, 2, "[T, G] object ids")
-    T, G = _checks.shape_of(gt_ids)
-    _checks.check_ndim("gt_pos", gt_pos, 3, "[T, G, d] object positions")
-    d = _checks.shape_of(gt_pos)[2]
-    _checks.check_shape("gt_pos", gt_pos, (T, G, d), "[T, G, d] object positions")
-    _checks.check_ndim("hyp_ids", hyp_ids, 2, "[T, H] hypothesis ids")
-    H = _checks.shape_of(hyp_ids)[1]
-    _checks.check_shape("hyp_ids", hyp_ids, (T, H), f"[T, H] hypothesis ids with T = {T}")
-    _checks.check_shape("hyp_pos", hyp_pos, (T, H, d), f"[T, H, d] positions with d = {d}")
-    if gt_mask is not None:
-        _checks.check_shape("gt_mask", gt_mask, (T, G), "[T, G] bools")
-    if hyp_mask is not None:
-        _checks.check_shape("hyp_mask", hyp_mask, (T, H), "[T, H] bools")
-    for name, ids in (("gt_ids", gt_ids), ("hyp_ids", hyp_ids)):
-        if not jnp.issubdtype(jnp.result_type(ids), jnp.integer):
-            raise ValueError(f"{name} must be integers; got dtype {jnp.result_type(ids)}")
-    for name, pos in (("gt_pos", gt_pos), ("hyp_pos", hyp_pos)):
-        if not jnp.issubdtype(jnp.result_type(pos), jnp.floating):
-            raise ValueError(f"{name} must be floating point; got dtype {jnp.result_type(pos)}")
-    return T, G, H
 
 
 def _check_ids(gt_ids, gt_mask, hyp_ids, hyp_mask, num_ids):

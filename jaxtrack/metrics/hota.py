@@ -37,8 +37,6 @@ from jax import lax
 
 from jaxtrack import _checks
 from jaxtrack.metrics import _pairs
-from jaxtrack.metrics.clear_mot import _check_inputs
-from jaxtrack.metrics.identity import _bound
 
 Array = jax.Array
 
@@ -114,10 +112,10 @@ def hota(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_ids: Array, hy
     if not isinstance(similarity, str) or similarity not in SIMILARITIES:
         raise ValueError(f"unknown similarity {similarity!r}; expected one of "
                          f"{list(SIMILARITIES)}")
-    T, G, H = _check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
+    T, G, H = _pairs.check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
     _pairs.check_distance(similarity, np.shape(gt_pos)[2])
-    max_ids = _bound("max_ids", max_ids, T * G, gt_ids, gt_mask)
-    max_hyp_ids = _bound("max_hyp_ids", max_hyp_ids, T * H, hyp_ids, hyp_mask)
+    max_ids = _pairs.check_id_bound("max_ids", max_ids, T * G, gt_ids, gt_mask)
+    max_hyp_ids = _pairs.check_id_bound("max_hyp_ids", max_hyp_ids, T * H, hyp_ids, hyp_mask)
     if _checks.is_concrete(zero_distance):
         if np.ndim(zero_distance) != 0 or not float(zero_distance) > 0 \
                 or not np.isfinite(zero_distance):

@@ -33,7 +33,6 @@ import optax
 from jax import lax
 
 from jaxtrack.metrics import _pairs
-from jaxtrack.metrics.clear_mot import _check_inputs
 
 Array = jax.Array
 
@@ -103,10 +102,10 @@ def identity_metrics(gt_ids: Array, gt_pos: Array, gt_mask: Array | None, hyp_id
       >>> res = metrics.identity_metrics(gt_ids, gt_pos, None, hyp_ids, hyp_pos, None, 0.5)
       >>> res.idf1, res.idp, res.idr
     """
-    T, G, H = _check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
+    T, G, H = _pairs.check_inputs(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask)
     _pairs.check_distance(distance, np.shape(gt_pos)[2])
-    max_ids = _bound("max_ids", max_ids, T * G, gt_ids, gt_mask)
-    max_hyp_ids = _bound("max_hyp_ids", max_hyp_ids, T * H, hyp_ids, hyp_mask)
+    max_ids = _pairs.check_id_bound("max_ids", max_ids, T * G, gt_ids, gt_mask)
+    max_hyp_ids = _pairs.check_id_bound("max_hyp_ids", max_hyp_ids, T * H, hyp_ids, hyp_mask)
     threshold = _check_threshold(threshold, gt_pos, hyp_pos)
     return _identity(jnp.asarray(gt_ids), gt_pos, gt_mask, jnp.asarray(hyp_ids), hyp_pos,
                      hyp_mask, threshold, distance, max_ids, max_hyp_ids)
@@ -127,17 +126,6 @@ def combine(results: IdentityResult) -> IdentityResult:
 
 # ---------------------------------------------------------------------------------------------
 # Internals
-
-
-def _bound(name, value, default, ids, mask):
-    if value is None:
-        value = max(int(default), 1)
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive int; got {value!r}")
-    distinct = _pairs.count_distinct(ids, mask)
-    if distinct is not None and distinct > value:
-        raise ValueError(f"{name} = {value} is smaller than the {distinct} distinct ids given")
-    return int(value)
 
 
 def _check_threshold(threshold, gt_pos, hyp_pos):
