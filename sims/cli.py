@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jaxtrack", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="both scenes' closed-loop Monte-Carlo evaluations at a "
-                                       "small size (about a minute and a half on two cores), "
+                                       "small size (75 s or so on two cores), "
                                        "or the KF / EKF / UKF filter demo")
     demo.add_argument("which", nargs="?", choices=("all", "humanoid", "following", "filters"),
                       default="all",
