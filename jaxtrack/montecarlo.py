@@ -193,13 +193,14 @@ def warm_up(episode_fn: Callable, params, key, batch_size: int, devices=None) ->
     return time.perf_counter() - t0
 
 
-def progress_bar(total: int, unit: str = "episodes", **kwargs) -> tqdm:
-    """A `tqdm` progress bar on stderr counting ``unit`` (rate in ``unit``/s), as `evaluate`
-    and the command line show it; ``kwargs`` go to `tqdm` (e.g. ``disable``, ``initial``)."""
+def progress_bar(total: int, unit: str = "episodes", file=None, **kwargs) -> tqdm:
+    """A `tqdm` progress bar counting ``unit`` (rate in ``unit``/s) on ``file`` (default
+    stderr), as `evaluate` and the command line show it; ``kwargs`` go to `tqdm` (e.g.
+    ``disable``, ``initial``)."""
     fmt = ("{l_bar}{bar}| {n_fmt}/{total_fmt} " + unit
            + " [{elapsed}<{remaining}, {rate_noinv_fmt}{postfix}]")
-    return tqdm(total=total, unit=" " + unit, bar_format=fmt, file=sys.stderr,
-                dynamic_ncols=True, **kwargs)
+    return tqdm(total=total, unit=" " + unit, bar_format=fmt,
+                file=sys.stderr if file is None else file, dynamic_ncols=True, **kwargs)
 
 
 def summarize(metrics) -> dict:

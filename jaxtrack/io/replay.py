@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxtrack import geometry
+from jaxtrack import geometry, montecarlo
 from jaxtrack.io import bags
 from jaxtrack.perception import legs, sensing
 from jaxtrack.tracking import user
@@ -172,7 +172,7 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     carry = (est.init(jax.random.split(key)[1], params, prior), sensing.init(scfg, dtype), pose0)
     C = int(chunk)
     outs = []
-    t0 = time.perf_counter()
+    bar = montecarlo.progress_bar(T, unit="frames", file=stream, disable=not progress)
     for start in range(0, T, C):
         n = min(C, T - start)
         idx = np.arange(start, start + C)
@@ -183,8 +183,8 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
               jnp.asarray(idx, jnp.int32))
         carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype), static_map)
         outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
-        if progress:
-            _bar(start + n, T, time.perf_counter() - t0, stream)
+        bar.update(n)
+    bar.close()
     pos, ids, mask, user_xy, found = (np.concatenate(x) for x in zip(*outs))
     return Tracks(np.arange(1, T + 1, dtype=np.int32), times, ids, pos, mask, user_xy, found)
 
@@ -243,14 +243,6 @@ def _chunk_runner(static: _Static, chunk: int):
         return jax.lax.scan(frame, carry, xs)
 
     return jax.jit(run)
-
-
-def _bar(done, total, seconds, stream=None):
-    stream = sys.stderr if stream is None else stream
-    filled = int(24 * done / total)
-    end = "\n" if done >= total or not stream.isatty() else "\r"
-    print(f"[{'#' * filled}{'.' * (24 - filled)}] {done}/{total} frames  {seconds:.1f} s",
-          end=end, file=stream, flush=True)
 
 
 def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,
