@@ -22,17 +22,17 @@ _ROWS = (("following_rms", "following RMS error [m]", "{:.3f}"),
          ("hota", "HOTA", "{:.2%}"),
          ("near_fraction", "someone within 0.45 m [% of time]", "{:.2%}"),
          ("stop_fraction", "safety stop [% of time]", "{:.2%}"))
-# CLEAR MOT scores a multi-target tracker's tracks; a single-person estimator has none (its
-# episodes hold NaN and -1 there, `sims.following.episode`).
+# CLEAR MOT, IDF1 and HOTA score a multi-target tracker's tracks; a single-person estimator has
+# none (its episodes hold NaN and -1 there, `sims.following.episode`).
 _MOT_KEYS = ("mota", "motp", "mot_switches", "idf1", "hota")
 
 
 def metrics_table(metrics: dict, title: str = "", multi_target: bool | None = None) -> str:
     """Mean (and 5-95 % range over episodes) of every episode metric that applies.
 
-    ``multi_target``: whether the estimator is a multi-target tracker (the CLEAR MOT rows
-    apply); None decides it from the values (rows without a finite value are left out).
-    Non-finite values (and the -1 of an unscored id-switch count) are left out of a row's
+    ``multi_target``: whether the estimator is a multi-target tracker (the CLEAR MOT, IDF1
+    and HOTA rows apply); None decides it from the values (rows without a finite value are left
+    out). Non-finite values (and the -1 of an unscored id-switch count) are left out of a row's
     statistics.
 
     Example:
@@ -95,8 +95,8 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
                          progress: bool = True) -> dict:
     """Run ``episodes`` closed-loop episodes, print the metrics table, write plots to ``out``.
 
-    The table has the metrics that apply to the estimator (no CLEAR MOT rows for a
-    single-person one); ``progress`` shows a progress bar on stderr.
+    The table has the metrics that apply to the estimator (no CLEAR MOT, IDF1 or HOTA rows
+    for a single-person one); ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
     """
