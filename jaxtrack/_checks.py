@@ -56,6 +56,8 @@ def check_covariance(name: str, x, n: int | None = None, *, batch_axes: int = 0)
     if not is_concrete(x):
         return
     a = np.asarray(x, dtype=np.float64)
+    if a.size == 0:  # a batch of zero covariances (zero tracks): nothing to check
+        return
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{name} contains NaN or inf")
     scale = max(float(np.max(np.abs(a))), np.finfo(np.float64).tiny)

@@ -141,7 +141,7 @@ def _linear_sum_assignment(cost, unassigned_cost, row_mask, col_mask):
     if col_mask is not None:
         allowed = allowed & jnp.asarray(col_mask, bool)[None, :]
     none = jnp.full((K,), -1, jnp.int32)
-    if K == 0 or (M == 0 and unassigned_cost is None):
+    if K == 0 or M == 0:  # nothing to assign: every row unassigned
         return none
     finite = jnp.where(allowed, cost, 0.0)
     any_allowed = jnp.any(allowed)

@@ -326,6 +326,10 @@ def _jpda_marginals(likelihoods, p_detect, clutter_density, track_mask, meas_mas
     if K == 0:
         return jnp.zeros((0, M + 1), a.dtype), JPDAInfo(
             present, none, none, jnp.zeros((), jnp.int32), jnp.ones((), bool))
+    if M == 0:  # an empty scan: every track missed its detection
+        return jnp.ones((K, 1), a.dtype), JPDAInfo(
+            jnp.zeros(K, bool), none, jnp.zeros(K, jnp.int32), jnp.zeros((), jnp.int32),
+            jnp.ones((), bool))
     if method == "lbp":
         log_beta, iters, converged = _lbp(a, b, tol, lbp_max_iter)
         return _normalise_rows(log_beta), JPDAInfo(present, none, jnp.zeros(K, jnp.int32),

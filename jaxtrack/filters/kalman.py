@@ -232,6 +232,8 @@ def rts_smoother(result: FilterResult, F: Array, Q: Array, *, B: Array | None = 
         _checks.check_shape(name, x, ((T,) if name in tv else ()) + (n, n))
     if (B is None) != (us is None):
         raise ValueError("B and us must be given together")
+    if T == 0:  # a zero-length sequence smooths to itself
+        return SmootherResult(result.means, result.covs)
     per_step = {k_: v[1:] for k_, v in (("F", F), ("Q", Q), ("B", B)) if k_ in tv}
     fixed = {k_: v for k_, v in (("F", F), ("Q", Q), ("B", B)) if k_ not in tv}
     if us is not None:

@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jax.scipy.special import logsumexp
 
@@ -559,6 +560,8 @@ def init_from_gaussian(key: Array, mean: Array, cov: Array, num: int) -> Particl
     Example:
       >>> ps = init_from_gaussian(key, jnp.zeros(4), jnp.eye(4), 1000)
     """
+    if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 1:
+        raise ValueError(f"num (the number of particles) must be a positive int; got {num!r}")
     _checks.check_ndim("mean", mean, 1, "a [n] vector")
     _checks.check_covariance("cov", cov, jnp.shape(mean)[0])
     low = _linalg.safe_cholesky(jnp.asarray(cov))

@@ -295,8 +295,12 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
         _checks.check_shape("compatible", compatible, (S, S))
     if int(max_people) < 1:
         raise ValueError(f"max_people must be >= 1; got {max_people}")
-    return _pair(jnp.asarray(legs_xy), jnp.asarray(legs_mask, bool), params, int(max_people),
-                 prev_legs, compatible)
+    legs_xy, legs_mask = jnp.asarray(legs_xy), jnp.asarray(legs_mask, bool)
+    if S == 0:  # no leg: one absent leg slot gives the same (empty) people
+        legs_xy = jnp.zeros((1, 2), legs_xy.dtype)
+        legs_mask = jnp.zeros((1,), bool)
+        compatible = None
+    return _pair(legs_xy, legs_mask, params, int(max_people), prev_legs, compatible)
 
 
 def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
@@ -324,6 +328,13 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
     for name, v in (("max_segments", max_segments), ("max_people", max_people)):
         if int(v) < 1:
             raise ValueError(f"{name} must be >= 1; got {v}")
+    if _checks.shape_of(ranges)[0] == 0:
+        # A scan without beams: detect on one beam without a return, then drop that beam.
+        dtype = jnp.result_type(ranges, angles, float)
+        det = detect(jnp.full((1,), jnp.inf, dtype), jnp.zeros((1,), dtype), params,
+                     max_segments=max_segments, max_people=max_people, prev_legs=prev_legs)
+        return det._replace(points=det.points[:0], valid=det.valid[:0],
+                            segments=det.segments._replace(labels=det.segments.labels[:0]))
     xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
                         params.max_range)
     segs = _segment(xy, valid, params.jump, int(max_segments))

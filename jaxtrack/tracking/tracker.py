@@ -181,8 +181,15 @@ class TrackerParams(NamedTuple):
         if concrete(p_detect) and not 0 < p_detect < 1:
             raise ValueError(f"p_detect must be in (0, 1); got {p_detect}")
         positive = [x for x in (q, clutter_density, init_speed_std, dt, r_std) if concrete(x)]
-        if any(np.min(np.asarray(x, float)) <= 0 for x in positive):
-            raise ValueError("q, r_std, clutter_density, init_speed_std and dt must be > 0")
+        # Written so that NaN fails too (NaN <= 0 is False).
+        if not all(np.all(np.asarray(x, float) > 0) and np.all(np.isfinite(x)) for x in positive):
+            raise ValueError("q, r_std, clutter_density, init_speed_std and dt must be finite "
+                             "and > 0")
+        for name, x in (("gamma", gamma), ("alpha", alpha), ("beta", beta),
+                        ("birth_confidence", birth_confidence), ("walking_speed", walking_speed),
+                        ("appearance_lr", appearance_lr)):
+            if concrete(x) and not np.all(np.isfinite(np.asarray(x, float))):
+                raise ValueError(f"{name} must be finite; got {x!r}")
         if concrete(gate_prob) and not 0 < gate_prob < 1:
             raise ValueError(f"gate_prob must be in (0, 1); got {gate_prob}")
         f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
@@ -298,7 +305,12 @@ def run(state: Tracks, detections: Detections, params: TrackerParams):
       ``(final Tracks, per-scan Tracks)``; e.g. for `jaxtrack.metrics.clear_mot` use
       ``hyp_ids = where(status == CONFIRMED, id, -1)`` and ``hyp_pos = mean[..., :2]``.
     """
-    frame0 = jax.tree_util.tree_map(lambda x: x[0], detections)
+    if jnp.shape(detections.positions)[0] == 0:
+        # Zero scans: a scan over nothing leaves the state unchanged and gives an empty
+        # per-scan record (leaves with a leading axis of 0).
+        frame0 = jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape[1:], x.dtype), detections)
+    else:
+        frame0 = jax.tree_util.tree_map(lambda x: x[0], detections)
     _check(state, frame0, params)
 
     def body(s, det):
@@ -546,8 +558,11 @@ def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association
     posts = association.jpda_update(h.predicted, h.zs, beta, _position(h.zs.dtype), h.R,
                                     sensor=h.sensor, meas_mask=h.mask, track_mask=h.live)
     hit = h.live & (beta[:, M] < 0.5)
-    best = jnp.argmax(beta[:, :M], -1)
-    col = jnp.where(hit & (jnp.max(beta[:, :M], -1) > 0.5), best, -1)
+    if M == 0:  # an empty scan: nothing to take
+        col = jnp.full(hit.shape, -1, jnp.int32)
+    else:
+        best = jnp.argmax(beta[:, :M], -1)
+        col = jnp.where(hit & (jnp.max(beta[:, :M], -1) > 0.5), best, -1)
     used = jnp.sum(jnp.where(h.live[:, None], beta[:, :M], 0.0), 0) >= 0.5
     return Association(posts, hit, col, used)
 

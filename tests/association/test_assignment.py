@@ -163,3 +163,11 @@ def test_bad_inputs_are_rejected_at_the_boundary():
         association.linear_sum_assignment(np.zeros((2, 2)), unassigned_cost=np.inf)
     with pytest.raises(ValueError, match="gated"):
         association.gnn(np.zeros((2, 2)), np.ones((2, 3), bool))
+
+
+@pytest.mark.parametrize("unassigned_cost", [None, 1.0])
+def test_no_columns_or_no_rows_leave_everything_unassigned(unassigned_cost):
+    out = association.linear_sum_assignment(jnp.zeros((3, 0)), unassigned_cost=unassigned_cost)
+    np.testing.assert_array_equal(out, [-1, -1, -1])
+    assert association.linear_sum_assignment(jnp.zeros((0, 3)),
+                                             unassigned_cost=unassigned_cost).shape == (0,)

@@ -559,3 +559,11 @@ def test_lbp_tolerance_follows_the_dtype():
         np.testing.assert_allclose(np.asarray(beta), ref, atol=1e-4)
     with pytest.raises(ValueError, match="lbp_tol"):
         association.jpda_marginals(L, 0.9, 0.2, method="lbp", lbp_tol="tight")
+
+
+@pytest.mark.parametrize("method", ["exact", "lbp"])
+@pytest.mark.parametrize("K", [1, 3, 5, 9])
+def test_empty_scan_gives_every_track_the_no_detection_event(K, method):
+    beta = association.jpda_marginals(jnp.zeros((K, 0)), 0.9, 0.5, method=method,
+                                      max_cluster_tracks=4)
+    np.testing.assert_array_equal(beta, np.ones((K, 1)))

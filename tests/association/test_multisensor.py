@@ -161,3 +161,12 @@ def test_seed_003_three_sensor_scene_jpda_and_nn_jpda_track_three_people(report)
         report(f"seed-003 scene RMSE per scene, {mode}", " ".join(f"{r:.3f}" for r in rmse[mode]))
     assert np.all(rmse["jpda"] < 0.13), rmse
     assert np.all(rmse["nn_jpda"] < 0.13), rmse
+
+
+def test_an_empty_scan_leaves_the_tracks_as_predicted():
+    tracks = Gaussian(jnp.arange(12.0).reshape(3, 4), jnp.tile(jnp.eye(4), (3, 1, 1)))
+    out = association.sequential_jpda_update(tracks, jnp.zeros((0, 2)), jnp.eye(2, 4),
+                                             jnp.eye(2)[None], jnp.zeros((0,), int),
+                                             p_detect=0.9, clutter_density=0.05)
+    np.testing.assert_array_equal(out.posterior.mean, tracks.mean)
+    np.testing.assert_array_equal(out.posterior.cov, tracks.cov)

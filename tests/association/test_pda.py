@@ -154,3 +154,15 @@ def test_bad_inputs_are_rejected():
         association.nn_update(Gaussian(mean[None], cov[None]), zs, np.array([7]), H, R)
     with pytest.raises(ValueError, match="beta must have shape"):
         association.jpda_update(Gaussian(mean[None], cov[None]), zs, beta[None, :-1], H, R)
+
+
+def test_zero_tracks_and_an_empty_scan_are_defined():
+    H, R = jnp.eye(2, 4), jnp.eye(2)
+    none = Gaussian(jnp.zeros((0, 4)), jnp.zeros((0, 4, 4)))
+    out = association.jpda_update(none, jnp.zeros((3, 2)), jnp.zeros((0, 4)), H, R)
+    assert out.mean.shape == (0, 4) and out.cov.shape == (0, 4, 4)
+    tracks = Gaussian(jnp.arange(12.0).reshape(3, 4), jnp.tile(jnp.eye(4), (3, 1, 1)))
+    beta = association.jpda_marginals(jnp.zeros((3, 0)), 0.9, 0.5)
+    same = association.jpda_update(tracks, jnp.zeros((0, 2)), beta, H, R)
+    np.testing.assert_array_equal(same.mean, tracks.mean)
+    np.testing.assert_array_equal(same.cov, tracks.cov)

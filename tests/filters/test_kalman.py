@@ -471,3 +471,12 @@ def test_return_predicted_false_drops_only_the_predictions():
     np.testing.assert_array_equal(lean.means, full.means)
     np.testing.assert_array_equal(lean.covs, full.covs)
     np.testing.assert_array_equal(lean.log_likelihood, full.log_likelihood)
+
+
+def test_zero_length_sequence_filters_and_smooths_to_empty_results():
+    init = Gaussian(jnp.zeros(4), jnp.eye(4))
+    F, Q, H, R = jnp.eye(4), 0.1 * jnp.eye(4), jnp.eye(2, 4), jnp.eye(2)
+    res = kalman.filter(init, jnp.zeros((0, 2)), F, Q, H, R)
+    assert res.means.shape == (0, 4) and float(res.log_likelihood) == 0.0
+    sm = kalman.rts_smoother(res, F, Q)
+    assert sm.means.shape == (0, 4) and sm.covs.shape == (0, 4, 4)

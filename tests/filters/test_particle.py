@@ -819,3 +819,9 @@ def test_bad_arguments_raise(problem):
         particle.filter(key, ps, p["zs"], f, g, masks=jnp.ones(T + 1, bool))
     with pytest.raises(ValueError, match="leading time axis"):
         particle.filter(key, ps, (p["zs"], p["zs"][:-1]), f, g)
+
+
+@pytest.mark.parametrize("num", [0, -3, 2.5, True])
+def test_init_from_gaussian_needs_a_positive_number_of_particles(num):
+    with pytest.raises(ValueError, match="num"):
+        particle.init_from_gaussian(jax.random.PRNGKey(0), jnp.zeros(2), jnp.eye(2), num)

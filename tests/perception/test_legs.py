@@ -340,3 +340,11 @@ def test_gradient_of_people_wrt_ranges_is_finite_with_one_point_segments():
     g = jax.grad(f)(jnp.asarray(ranges))
     assert np.all(np.isfinite(np.asarray(g)))
     assert np.any(np.asarray(g) != 0)
+
+
+def test_a_scan_without_beams_and_no_legs_give_no_people():
+    det = legs.detect(jnp.zeros((0,)), jnp.zeros((0,)), max_people=4)
+    assert det.points.shape == (0, 2) and det.valid.shape == (0,)
+    assert not bool(jnp.any(det.people.mask)) and not bool(jnp.any(det.legs_mask))
+    people = legs.pair_legs(jnp.zeros((0, 2)), jnp.zeros((0,), bool), max_people=3)
+    assert people.mask.shape == (3,) and not bool(jnp.any(people.mask))

@@ -648,3 +648,27 @@ def test_stages_reject_arguments_of_the_wrong_kind():
         tracker.manage(state, hyp, hyp, params)
     with pytest.raises(ValueError, match="capacity"):
         tracker.births(tracking.init(tracking.TrackerConfig(capacity=3)), hyp, assoc, params)
+
+
+@pytest.mark.parametrize("assoc", ["jpda", "gnn", "nn_jpda"])
+def test_an_empty_frame_equals_an_all_masked_frame_and_zero_scans_change_nothing(assoc):
+    cfg = tracker.TrackerConfig(capacity=4, association=assoc)
+    params = tracker.TrackerParams.create(cfg, dtype=jnp.float64)
+    state = tracker.step(tracker.init(cfg, jnp.float64),
+                         tracker.make_detections([[1.0, 2.0], [3.0, 0.5]], 3), params)
+    empty = tracker.step(state, tracker.make_detections(np.zeros((0, 2)), 0), params)
+    masked = tracker.step(state, tracker.make_detections(np.zeros((0, 2)), 3), params)
+    for a, b in zip(jax.tree_util.tree_leaves(empty), jax.tree_util.tree_leaves(masked)):
+        np.testing.assert_array_equal(a, b)
+    none = jax.tree_util.tree_map(lambda x: x[None][:0], tracker.make_detections([[1.0, 2.0]], 3))
+    final, seq = tracker.run(state, none, params)
+    for a, b in zip(jax.tree_util.tree_leaves(final), jax.tree_util.tree_leaves(state)):
+        np.testing.assert_array_equal(a, b)
+    assert seq.id.shape == (0, 4)
+
+
+@pytest.mark.parametrize("bad", [dict(q=float("nan")), dict(r_std=(0.1, float("nan"), 0.2)),
+                                 dict(dt=float("inf")), dict(gamma=float("nan"))])
+def test_non_finite_parameters_are_refused(bad):
+    with pytest.raises(ValueError, match="finite"):
+        tracker.TrackerParams.create(tracker.TrackerConfig(), **bad)
