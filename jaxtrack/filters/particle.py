@@ -12,10 +12,16 @@ One step of the bootstrap (SIR) filter, `step`, is
    :math:`\log \hat p(z_t | z_{1:t-1}) = \operatorname{logsumexp}_i(\log \bar w_{t-1}^i +
    \log p(z_t | x_t^i))` over normalised incoming weights :math:`\bar w`.
 
-A masked step only propagates. If every particle gets zero likelihood (all log weights
-``-inf``), the step is *degenerate*: the increment is ``-inf``, the weights are reset to
-uniform over the propagated particles (so nothing turns into NaN) and `filter` counts it.
-NaN log-likelihoods count as ``-inf``.
+A masked step only propagates. A measurement array with a NaN or inf is treated as masked, as
+the Kalman filters treat one, and `filter` counts it (``num_invalid``), so one corrupt reading
+cannot turn an episode's log-likelihood (and a batch-mean loss's gradient) into NaN. A
+measurement *pytree* (e.g. padded detections with their own mask, whose absent slots may hold
+NaN) is handed to the likelihood as it is: the likelihood masks its own padding. If every particle gets zero likelihood (all log weights ``-inf``), the step is
+*degenerate*: the increment is ``-inf``, the weights are reset to uniform over the propagated
+particles (so nothing turns into NaN) and `filter` counts it. NaN and ``+inf``
+log-likelihoods of single particles count as ``-inf`` (a particle whose density is not a
+number gets no weight). Particles of zero weight do not enter the moments, so a NaN particle
+of zero weight leaves the mean finite.
 
 Resamplers map ``(key, log_weights [N], num=None) -> ancestors [num]``: `multinomial`,
 `systematic`, `stratified`, `residual`. Differentiable resampling (`stop_gradient_resampling`,
@@ -71,6 +77,8 @@ class ParticleFilterResult(NamedTuple):
       num_degenerate: number of steps where every particle had zero likelihood.
       final: the last `ParticleSet`.
       particles: [T, N, n] particles, only if ``return_particles=True`` (else None).
+      num_invalid: number of steps whose measurement was flagged present but held NaN or inf,
+        and was therefore treated as missing.
     """
 
     means: Array
@@ -82,6 +90,7 @@ class ParticleFilterResult(NamedTuple):
     num_degenerate: Array
     final: ParticleSet
     particles: Array | None = None
+    num_invalid: Array | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -124,6 +133,7 @@ def weighted_cov(ps: ParticleSet, angle_dims: Sequence[int] = (),
 
 
 def _mean(w, particles, angle_dims):
+    particles = jnp.where(w[:, None] > 0, particles, 0.0)
     mean = w @ particles
     for d in angle_dims:
         ang = particles[:, d]
@@ -132,7 +142,7 @@ def _mean(w, particles, angle_dims):
 
 
 def _cov(w, particles, mean, angle_dims):
-    dev = particles - mean
+    dev = jnp.where(w[:, None] > 0, particles - mean, 0.0)
     for d in angle_dims:
         dev = dev.at[:, d].set(wrap(dev[:, d]))
     return _linalg.symmetrize((dev.T * w) @ dev)
@@ -540,7 +550,8 @@ def filter(key: Array, init: ParticleSet, zs, transition: Callable, log_likeliho
                              vectorized, regularise, regularise_scale, normalized=True)
         w = jnp.exp(ps.log_weights)  # `_step` returns normalised log weights
         mean = _mean(w, ps.particles, angle_dims)
-        out = {"mean": mean, "ess": 1.0 / jnp.sum(w * w), "inc": inc, "did": did}
+        out = {"mean": mean, "ess": 1.0 / jnp.sum(w * w), "inc": inc, "did": did,
+               "invalid": m & ~_finite(z)}
         if return_covs:
             out["cov"] = _cov(w, ps.particles, mean, angle_dims)
         if return_particles:
@@ -551,7 +562,8 @@ def filter(key: Array, init: ParticleSet, zs, transition: Callable, log_likeliho
     incs = outs["inc"]
     degenerate = jnp.isneginf(incs)
     return ParticleFilterResult(outs["mean"], outs.get("cov"), outs["ess"], incs, jnp.sum(incs),
-                                outs["did"], jnp.sum(degenerate), final, outs.get("particles"))
+                                outs["did"], jnp.sum(degenerate), final, outs.get("particles"),
+                                jnp.sum(outs["invalid"]).astype(jnp.int32))
 
 
 def init_from_gaussian(key: Array, mean: Array, cov: Array, num: int) -> ParticleSet:
@@ -573,11 +585,10 @@ def _step(key, ps, z, transition, log_likelihood, scheme, ess_threshold, mask, v
           regularise, regularise_scale, normalized=False):
     n_p = ps.log_weights.shape[-1]
     k_res, k_prop, k_reg = jax.random.split(key, 3)
-    present = jnp.asarray(True if mask is None else mask, bool)
-    if mask is not None:
-        # A masked measurement may be NaN padding: its likelihood is discarded, but the
-        # gradient of a discarded NaN is still NaN, so the likelihood sees zeros instead.
-        z = jax.tree_util.tree_map(lambda a: jnp.where(present, a, jnp.zeros_like(a)), z)
+    present = jnp.asarray(True if mask is None else mask, bool) & _finite(z)
+    # A masked or non-finite measurement may be NaN padding: its likelihood is discarded, but
+    # the gradient of a discarded NaN is still NaN, so the likelihood sees zeros instead.
+    z = jax.tree_util.tree_map(lambda a: jnp.where(present, a, jnp.zeros_like(a)), z)
     lw = ps.log_weights if normalized else normalize(ps.log_weights)
     w = jnp.exp(lw)
     do_resample = present & (1.0 / jnp.sum(w * w) < ess_threshold * n_p)
@@ -595,7 +606,7 @@ def _step(key, ps, z, transition, log_likelihood, scheme, ess_threshold, mask, v
     else:
         x = jax.vmap(transition)(jax.random.split(k_prop, n_p), x)
         ll = jax.vmap(log_likelihood, (None, 0))(z, x)
-    ll = jnp.where(jnp.isnan(ll), -jnp.inf, ll)
+    ll = jnp.where(jnp.isnan(ll) | (ll == jnp.inf), -jnp.inf, ll)
     joint = lw + ll
     inc = logsumexp(joint)
     degenerate = present & jnp.isneginf(inc)
@@ -603,6 +614,15 @@ def _step(key, ps, z, transition, log_likelihood, scheme, ess_threshold, mask, v
     new_lw = jnp.where(degenerate, -math.log(n_p), new_lw)
     inc = jnp.where(present, inc, 0.0)
     return ParticleSet(x, new_lw), inc, do_resample
+
+
+def _finite(z) -> Array:
+    """Scalar bool: a floating measurement array is finite (pytrees mask their own padding,
+    see the module doc)."""
+    if isinstance(z, (jax.Array, np.ndarray, float)) and jnp.issubdtype(jnp.result_type(z),
+                                                                         jnp.inexact):
+        return jnp.all(jnp.isfinite(z))
+    return jnp.asarray(True)
 
 
 def _check_set(ps, name="ps"):

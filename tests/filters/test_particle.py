@@ -597,9 +597,19 @@ def shift_by_one(key, x):
     return x + 1.0
 
 
+_NON_FINITE = (jnp.nan, -jnp.inf, jnp.inf)
+
+
 def patchy_log_likelihood(z, x):
-    """Gaussian in ``z[:2]`` where ``x[0] <= 0``, the value ``z[2]`` elsewhere (NaN, -inf)."""
-    return jnp.where(x[:, 0] > 0, z[2], log_likelihood_batch(z[:2], x))
+    """Gaussian in ``z[:2]`` where ``x[0] <= 0``, the value ``z[2]`` elsewhere. A non-finite
+    measurement is masked by the filter, so a finite code selects a non-finite value:
+    ``z[2] = 1000 + c`` gives NaN, -inf or +inf (c = 0, 1, 2) where ``x[0] > 0``, and
+    ``2000 + c`` the same for every particle."""
+    code = z[2]
+    bad = jnp.asarray(_NON_FINITE)[jnp.clip(jnp.round(code) % 1000, 0, 2).astype(int)]
+    value = jnp.where(code >= 1000, bad, code)
+    region = (code >= 2000) | (x[:, 0] > 0)
+    return jnp.where(region, value, log_likelihood_batch(z[:2], x))
 
 
 @pytest.fixture(scope="module")
@@ -626,22 +636,25 @@ def test_masked_step_only_propagates(cloud):
     assert not np.allclose(new.particles, ps.particles + 1.0)
 
 
-def test_nan_log_likelihoods_count_as_minus_inf(cloud):
+def test_nan_and_plus_inf_log_likelihoods_count_as_minus_inf(cloud):
     ps = particle.ParticleSet(cloud.particles, jnp.zeros(cloud.log_weights.shape))
     n_p = ps.log_weights.shape[0]
     key = jax.random.PRNGKey(1)
-    a = jit_step(key, ps, jnp.array([0.3, -0.2, jnp.nan]), 1.0, True, shift_by_one,
+    a = jit_step(key, ps, jnp.array([0.3, -0.2, 1000.0]), 1.0, True, shift_by_one,
                  patchy_log_likelihood)
-    b = jit_step(key, ps, jnp.array([0.3, -0.2, -jnp.inf]), 1.0, True, shift_by_one,
+    b = jit_step(key, ps, jnp.array([0.3, -0.2, 1001.0]), 1.0, True, shift_by_one,
                  patchy_log_likelihood)
-    np.testing.assert_array_equal(a[0].log_weights, b[0].log_weights)
-    np.testing.assert_array_equal(a[1], b[1])
+    plus = jit_step(key, ps, jnp.array([0.3, -0.2, 1002.0]), 1.0, True, shift_by_one,
+                    patchy_log_likelihood)
+    for other in (b, plus):
+        np.testing.assert_array_equal(a[0].log_weights, other[0].log_weights)
+        np.testing.assert_array_equal(a[1], other[1])
     dead = np.asarray(a[0].particles)[:, 0] > 0
     assert 0 < dead.sum() < n_p
     assert np.all(np.isneginf(np.asarray(a[0].log_weights)[dead]))
     assert np.all(np.isfinite(np.asarray(a[0].log_weights)[~dead])) and np.isfinite(float(a[1]))
     # NaN for every particle: a degenerate step, weights reset to uniform
-    c = jit_step(key, ps, jnp.array([jnp.nan, 0.0, jnp.nan]), 1.0, True, shift_by_one,
+    c = jit_step(key, ps, jnp.array([0.0, 0.0, 2000.0]), 1.0, True, shift_by_one,
                  patchy_log_likelihood)
     assert np.isneginf(float(c[1]))
     np.testing.assert_allclose(c[0].log_weights, -math.log(n_p), rtol=0, atol=1e-15)
@@ -672,20 +685,36 @@ def test_nan_measurement_at_masked_step_is_harmless(problem):
     assert np.all(np.isfinite(np.asarray(grad))), grad
     np.testing.assert_array_equal(value, value_ref)
     np.testing.assert_allclose(grad, grad_ref, rtol=1e-12, atol=0)
+    # ... and neither does an unmasked NaN reading: it is masked, so a batch-mean tuning loss
+    # over episodes keeps a finite gradient.
+    (value_bad, _), grad_bad = pf_value_and_grad(GRAD_KEYS[:2], zs.at[5, 1].set(jnp.nan),
+                                                 np.ones(T_GRAD, bool), LOG_STD_GRAD, 256,
+                                                 SOFT_HALF)
+    np.testing.assert_array_equal(value_bad, value_ref)
+    np.testing.assert_allclose(grad_bad, grad_ref, rtol=1e-12, atol=0)
+    assert np.isfinite(float(jnp.mean(grad_bad)))
 
 
-@pytest.mark.parametrize("bad", [np.inf, np.nan], ids=["zero-likelihood", "nan-likelihood"])
-def test_degenerate_step_is_counted_and_reset_to_uniform(bad, problem):
-    """An unmasked infinite (NaN) measurement gives every particle log-likelihood -inf (NaN,
-    which counts as -inf)."""
+@pytest.mark.parametrize("bad", [np.inf, np.nan], ids=["inf", "nan"])
+def test_non_finite_measurement_is_masked_and_counted(bad, problem):
+    """An unmasked NaN or inf measurement is treated as missing, as the Kalman filters treat it:
+    the same run as with that step masked, and counted."""
     p = problem
-    res = run_pf(jax.random.PRNGKey(15), p["init"], p["zs"].at[4, 0].set(bad), p["masks"], 1.0)
-    assert int(res.num_degenerate) == 1
-    assert np.isneginf(float(res.log_likelihoods[4])) and np.isneginf(float(res.log_likelihood))
-    assert np.all(np.isfinite(np.delete(np.asarray(res.log_likelihoods), 4)))
-    assert abs(float(res.ess[4]) - N) < 1e-9
-    assert np.all(np.isfinite(np.asarray(res.means))) and np.all(np.isfinite(np.asarray(res.covs)))
-    assert np.all(np.isfinite(np.asarray(res.final.log_weights)))
+    zs = p["zs"].at[4, 0].set(bad)
+    res = run_pf(jax.random.PRNGKey(15), p["init"], zs, p["masks"], 1.0)
+    ref = run_pf(jax.random.PRNGKey(15), p["init"], zs, p["masks"].at[4].set(False), 1.0)
+    assert int(res.num_invalid) == 1 and int(ref.num_invalid) == 0
+    assert int(res.num_degenerate) == 0 and float(res.log_likelihoods[4]) == 0.0
+    np.testing.assert_array_equal(res.means, ref.means)
+    np.testing.assert_array_equal(res.log_likelihood, ref.log_likelihood)
+    assert np.isfinite(float(res.log_likelihood))
+
+
+def test_zero_weight_nan_particle_leaves_the_moments_finite():
+    x = jnp.array([[0.0, 1.0], [2.0, 3.0], [jnp.nan, jnp.nan]])
+    ps = particle.ParticleSet(x, jnp.array([0.0, 0.0, -jnp.inf]))
+    np.testing.assert_allclose(particle.weighted_mean(ps), [1.0, 2.0])
+    np.testing.assert_allclose(particle.weighted_cov(ps), [[1.0, 1.0], [1.0, 1.0]])
 
 
 # ---------------------------------------------------------------------------------------------
