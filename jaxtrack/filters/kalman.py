@@ -50,6 +50,9 @@ class FilterResult(NamedTuple):
       log_likelihood: scalar, the sum of ``log_likelihoods``.
       num_invalid: number of measurement components that were flagged present but were not
         finite, and were therefore treated as missing.
+      num_not_pd: number of steps whose filtered covariance is not positive definite (its
+        Cholesky factorisation fails): a loss of definiteness made visible, jit-safe. 0 in a
+        healthy run.
     """
 
     means: Array
@@ -59,6 +62,7 @@ class FilterResult(NamedTuple):
     log_likelihoods: Array
     log_likelihood: Array
     num_invalid: Array
+    num_not_pd: Array | None = None
 
 
 class SmootherResult(NamedTuple):
@@ -334,8 +338,10 @@ def run_filter(init, zs, masks, step, per_step, return_predicted=True) -> Filter
     def body(state, inp):
         z, mask, p = inp
         pred, post, ll = step(state, z, mask, p)
-        return post, (post, pred if return_predicted else None, ll)
+        not_pd = ~jnp.all(jnp.isfinite(_linalg.cholesky(post.cov)))
+        return post, (post, pred if return_predicted else None, ll, not_pd)
 
-    _, (post, pred, lls) = lax.scan(body, init, (zs, masks, per_step))
+    _, (post, pred, lls, not_pd) = lax.scan(body, init, (zs, masks, per_step))
     pm, pc = (pred.mean, pred.cov) if return_predicted else (None, None)
-    return FilterResult(post.mean, post.cov, pm, pc, lls, jnp.sum(lls), num_invalid)
+    return FilterResult(post.mean, post.cov, pm, pc, lls, jnp.sum(lls), num_invalid,
+                        jnp.sum(not_pd).astype(jnp.int32))

@@ -17,8 +17,8 @@ amplified by about :math:`1/\alpha^2`: in float32 ``alpha = 1e-3`` loses about t
 step and long runs lose positive definiteness (measured in the tests). The default scheme of
 `predict` / `update` / `filter` is therefore ``merwe_points(alpha=1.0, beta=2.0, kappa=0.0)``,
 whose weights are all non-negative (:math:`W_0^m = 0`, :math:`W_0^c = 2`), so every unscented
-covariance is a sum of positive semi-definite terms; pass ``points=merwe_points()`` for filterpy's
-usual small-alpha scheme in float64. Covariances are symmetrised after every step, and sigma points are drawn with
+covariance is a sum of positive semi-definite terms; pass ``points=merwe_points(alpha=1e-3)`` for filterpy's
+usual small-alpha scheme (``merwe_points(alpha=1e-3)``, which warns) in float64. Covariances are symmetrised after every step, and sigma points are drawn with
 `jaxtrack.filters._linalg.safe_cholesky`: if the Cholesky factor of a drifted covariance is not
 finite, it is retried with a relative diagonal jitter (1e-9 in float64, 1e-5 in float32), and
 failing that the square root of the clipped diagonal is used. The jitter only acts where the
@@ -31,6 +31,7 @@ Angles: ``x_mean_fn(sigmas [2n+1, n], weights [2n+1]) -> [n]`` and ``residual_x(
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable, Collection
 
 import jax
@@ -89,17 +90,32 @@ class SigmaPoints:
 jax.tree_util.register_static(SigmaPoints)
 
 
-def merwe_points(alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> SigmaPoints:
+def merwe_points(alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0) -> SigmaPoints:
     r"""Scaled sigma points (van der Merwe 2004): :math:`\lambda = \alpha^2 (n+\kappa) - n`,
     :math:`W^m_0 = \lambda/(n+\lambda)`, :math:`W^c_0 = W^m_0 + 1 - \alpha^2 + \beta`,
     :math:`W_i = 1/(2(n+\lambda))`. Same points and order as filterpy's MerweScaledSigmaPoints.
 
+    The default ``alpha = 1`` (with ``kappa = 0``: :math:`W^m_0 = 0`) keeps every weight
+    non-negative. The literature's common ``alpha = 1e-3`` puts a weight of about
+    :math:`1 - 1/\alpha^2 = -10^6` on the centre: in float32, long runs then lose positive
+    definiteness (91-163 steps on a badly scaled model), so an ``alpha`` below `SMALL_ALPHA`
+    warns.
+
     Example:
-      >>> pts = ukf.merwe_points(alpha=0.1)
+      >>> pts = ukf.merwe_points(alpha=0.5)
     """
     if not alpha > 0:
         raise ValueError(f"alpha must be > 0; got {alpha}")
+    if alpha < SMALL_ALPHA:
+        warnings.warn(f"merwe_points(alpha={alpha:g}) puts a weight of about "
+                      f"{1 - 1 / alpha**2:.3g} on the centre point (kappa = 0): rounding is "
+                      f"amplified ~1/alpha^2 and float32 runs lose positive definiteness; "
+                      f"prefer alpha >= {SMALL_ALPHA} (the default is 1)", stacklevel=2)
     return SigmaPoints("merwe", float(alpha), float(beta), float(kappa))
+
+
+#: Below this ``alpha``, `merwe_points` warns (centre weight below about -99).
+SMALL_ALPHA = 0.1
 
 
 def julier_points(kappa: float = 0.0) -> SigmaPoints:

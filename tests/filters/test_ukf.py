@@ -56,10 +56,16 @@ def range_bearing_residual_numpy(a, b):
     return d
 
 
+def small_alpha_points(**kw):
+    """filterpy's usual small-alpha scheme, which `merwe_points` warns about."""
+    with pytest.warns(UserWarning, match="centre point"):
+        return ukf.merwe_points(**kw)
+
+
 # (id, jaxtrack points, filterpy points for n states)
 POINTS = [
     # the default alpha and beta, with kappa = 3 - n (kappa = 0 is the default)
-    ("merwe-a1e-3-b2-k-2", ukf.merwe_points(alpha=1e-3, beta=2.0, kappa=-2.0),
+    ("merwe-a1e-3-b2-k-2", small_alpha_points(alpha=1e-3, beta=2.0, kappa=-2.0),
      lambda n: filterpy.kalman.MerweScaledSigmaPoints(n, alpha=1e-3, beta=2.0, kappa=-2.0)),
     ("merwe-a0.5-b0-k0", ukf.merwe_points(alpha=0.5, beta=0.0, kappa=0.0),
      lambda n: filterpy.kalman.MerweScaledSigmaPoints(n, alpha=0.5, beta=0.0, kappa=0.0)),
@@ -169,6 +175,7 @@ def test_filter_with_linear_models_equals_kalman_filter(kf_filter, cv_problem, a
 # The tests below therefore use alpha = 1 points (also the library default), where none of this
 # happens; the small-alpha points are checked against filterpy and the KF above.
 WELL_SCALED_POINTS = ukf.merwe_points(alpha=1.0, beta=2.0, kappa=0.0)
+SMALL_ALPHA = small_alpha_points(alpha=1e-3)
 RB_PRIOR = Gaussian(np.array([3.0, 4.0, 0.5, 0.1]), np.diag([0.2, 0.3, 0.5, 0.5]))
 RB_NOISE = np.array([[0.1, 0.004], [0.004, 0.01]])
 _update_rb = jax.jit(lambda s, z, m: ukf.update(s, z, RB, RB_NOISE, points=WELL_SCALED_POINTS,
@@ -307,7 +314,7 @@ def test_float32_predict_with_small_alpha_points_matches_float64(assert_close):
     F, Q = np.asarray(F), np.asarray(Q)
     state = Gaussian(np.array([6.0, 3.0, -0.5, 0.8]), np.diag([0.1, 0.1, 0.1, 0.1]))
     predict = jax.jit(lambda s: ukf.predict(s, lambda x: x @ F.T.astype(x.dtype),
-                                            Q.astype(s.cov.dtype), points=ukf.merwe_points()))
+                                            Q.astype(s.cov.dtype), points=SMALL_ALPHA))
     pred64 = jax.device_get(predict(state))
     pred32 = jax.device_get(predict(jax.tree.map(lambda a: a.astype(np.float32), state)))
     assert pred32.mean.dtype == np.float32
@@ -320,7 +327,7 @@ def test_float32_predict_with_small_alpha_points_matches_float64(assert_close):
 
 
 @pytest.mark.parametrize("dtype,points", [
-    (np.float64, ukf.DEFAULT_POINTS), (np.float64, ukf.merwe_points()),
+    (np.float64, ukf.DEFAULT_POINTS), (np.float64, small_alpha_points(alpha=1e-3)),
     (np.float32, ukf.DEFAULT_POINTS)], ids=["f64-default", "f64-alpha1e-3", "f32-default"])
 def test_long_badly_scaled_run_keeps_covariances_symmetric_positive_definite(
         badly_scaled_problem, assert_spd_sequence, dtype, points):
@@ -332,6 +339,7 @@ def test_long_badly_scaled_run_keeps_covariances_symmetric_positive_definite(
     assert res.covs.shape == (10_000, 4, 4)
     assert_spd_sequence(res.covs)
     assert np.all(np.isfinite(res.log_likelihoods))
+    assert int(res.num_not_pd) == 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -376,3 +384,27 @@ def _bad_input_cases():
 def test_bad_input_raises_clear_error(call, error, match):
     with pytest.raises(error, match=match):
         call()
+
+
+def test_merwe_points_default_is_well_scaled_and_small_alpha_warns():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert ukf.merwe_points() == ukf.DEFAULT_POINTS
+        ukf.merwe_points(alpha=ukf.SMALL_ALPHA)
+    with pytest.warns(UserWarning, match=r"-1e\+06 on the centre"):
+        ukf.merwe_points(alpha=1e-3)
+
+
+def test_float32_small_alpha_long_run_flags_the_loss_of_definiteness(badly_scaled_problem):
+    """The loss of definiteness that small-alpha points cause in float32 is counted in the
+    result (``num_not_pd``) instead of passing silently."""
+    init, zs, F, Q, H, R = jax.tree.map(lambda a: np.asarray(a, np.float32),
+                                        badly_scaled_problem)
+    res = jax.jit(lambda i, z: ukf.filter(i, z[:400], lambda x: F @ x, Q, lambda x: H @ x, R,
+                                          points=SMALL_ALPHA))(init, zs)
+    eig = np.linalg.eigvalsh(np.asarray(res.covs, np.float64))
+    not_pd = int(np.sum(eig.min(-1) <= 0))
+    assert not_pd > 0  # the failure this flag exists for
+    assert int(res.num_not_pd) >= not_pd // 2
