@@ -23,8 +23,12 @@ Each record has ``valid [T]`` (False only for empty slots after resampling) and 
 A bag whose end is missing (a recording cut by a crash or a full disk has no index) is read
 record by record up to the cut: what is readable is returned, and the report (also issued as a
 `BagWarning`) says where reading stopped and how many messages were lost when the bag says how
-many it holds (ROS 2 ``metadata.yaml``). Times are the messages' header stamps
-(``time_source="header"``) or the bag's receive times (``"bag"``).
+many it holds (ROS 2 ``metadata.yaml``). A damaged record inside the file (a flipped bit, a
+zeroed block) is skipped and its byte offset listed in the report; a file from which nothing of
+the topic can be read raises `BagError` naming the file and, when known, the offset. Times are
+the messages' header stamps (``time_source="header"``) or the bag's receive times (``"bag"``); a
+few messages whose time lies apart from the rest of the stream (more than `OUTLIER_GAP` from it:
+a flipped bit in a stamp) are left out and counted in the report.
 
 Example:
   >>> scans = read_laser("run.bag", "/scan")
@@ -40,7 +44,7 @@ import sqlite3
 import struct
 import tempfile
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
 
@@ -51,7 +55,7 @@ __all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagRepo
            "read_detections", "JointStates", "read_joint_states", "resample",
            "register_people_msgs", "write_bag", "topics", "beam_angles",
            "LASER_SCAN", "IMAGE", "ODOMETRY", "POSE_ARRAY", "POSITION_MEASUREMENT_ARRAY",
-           "JOINT_STATE"]
+           "JOINT_STATE", "MAX_RESAMPLE_SLOTS", "OUTLIER_GAP"]
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 IMAGE = "sensor_msgs/msg/Image"
@@ -60,6 +64,16 @@ POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSITION_MEASUREMENT_ARRAY = "people_msgs/msg/PositionMeasurementArray"
 POSITION_MEASUREMENT = "people_msgs/msg/PositionMeasurement"
+
+# `resample` refuses a clock of more slots than this (10 Hz for 11.5 days): a wrong rate or a
+# stray timestamp would otherwise allocate tens of GiB before anything else fails.
+MAX_RESAMPLE_SLOTS = 10**7
+
+# Seconds: the readers split a topic's sorted times at gaps longer than
+# max(OUTLIER_GAP, 100 x the median interval) and leave out every part but the largest that holds
+# at most max(2, 1 %) of the messages. A bit flipped in a stamp's seconds (2^6 s and more) puts a
+# message that far away; a genuine pause between two substantial parts of a recording is kept.
+OUTLIER_GAP = 60.0
 
 _INSTALL = 'reading and writing ROS bags needs the rosbags package: pip install "jaxtrack[ros]"'
 
@@ -101,6 +115,10 @@ class BagReport(NamedTuple):
       stopped_at: byte offset at which the storage file stops being readable (None if it was
         read to the end).
       detail: a sentence on what went wrong ("" when nothing did).
+      dropped: messages read but left out of the arrays (times apart from the stream, see
+        `OUTLIER_GAP`; odometry with NaN / inf values); ``detail`` says which and when.
+      damaged: byte offsets of the records skipped as damaged when the file was read record by
+        record (a record inside a compressed chunk: the chunk's offset), in file order.
     """
 
     path: str
@@ -110,10 +128,13 @@ class BagReport(NamedTuple):
     unreadable: int
     stopped_at: int | None
     detail: str
+    dropped: int = 0
+    damaged: tuple = ()
 
     @property
     def complete(self) -> bool:
-        return self.unreadable == 0 and self.stopped_at is None and not self.detail
+        return (self.unreadable == 0 and self.stopped_at is None and not self.detail
+                and self.dropped == 0 and not self.damaged)
 
 
 class LaserScans(NamedTuple):
@@ -240,7 +261,7 @@ def read_laser(path, topic: str, *, max_beams: int | None = None, rate: float | 
     """
     msgs, report = _read_topic(path, topic, (LASER_SCAN,), time_source, typestore)
     if not msgs:
-        raise BagError(f"no readable {LASER_SCAN} message on {topic!r} in {path}")
+        raise _no_messages(LASER_SCAN, topic, path, report)
     first = msgs[0][1]
     beams = len(first.ranges)
     for i, (_, m) in enumerate(msgs):
@@ -286,14 +307,15 @@ def read_depth(path, topic: str, *, rate: float | None = None, method: str = "bu
     """
     msgs, report = _read_topic(path, topic, (IMAGE,), time_source, typestore)
     if not msgs:
-        raise BagError(f"no readable {IMAGE} message on {topic!r} in {path}")
+        raise _no_messages(IMAGE, topic, path, report)
     H, W = int(msgs[0][1].height), int(msgs[0][1].width)
-    depth = np.zeros((len(msgs), H, W), np.float32)
+    images = []   # each checked against its own bytes before any [T, H, W] array is made
     for i, (_, m) in enumerate(msgs):
         if (int(m.height), int(m.width)) != (H, W):
             raise BagError(f"{topic!r} in {path}: image {i} is {m.height}x{m.width}, the first "
                            f"is {H}x{W}")
-        depth[i] = _depth_image(m, i, topic)
+        images.append(_depth_image(m, i, topic))
+    depth = np.stack(images)
     mask = np.isfinite(depth) & (depth > 0)
     depth = np.where(mask, depth, np.float32(0))
     times = np.array([t for t, _ in msgs], np.float64)
@@ -309,7 +331,10 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
     """Read ``nav_msgs/Odometry`` into planar poses (x, y, yaw) and twists (vx, vy, wz).
 
     The yaw is :math:`\\operatorname{atan2}(2(wz + xy), 1 - 2(y^2 + z^2))` of the orientation
-    quaternion (the rotation about z of a planar robot).
+    quaternion (the rotation about z of a planar robot). Messages whose pose or twist holds NaN
+    or inf (a lost localisation, a damaged message) are dropped, not masked: they are not rows
+    of the result, ``report.dropped`` counts them and ``report.detail`` says so (a
+    `BagWarning` too).
 
     Example:
       >>> odom = read_odometry("run.bag", "/odom")
@@ -317,7 +342,7 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
     """
     msgs, report = _read_topic(path, topic, (ODOMETRY,), time_source, typestore)
     if not msgs:
-        raise BagError(f"no readable {ODOMETRY} message on {topic!r} in {path}")
+        raise _no_messages(ODOMETRY, topic, path, report)
     pose = np.zeros((len(msgs), 3))
     twist = np.zeros((len(msgs), 3))
     for i, (_, m) in enumerate(msgs):
@@ -327,7 +352,19 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
         v, w = m.twist.twist.linear, m.twist.twist.angular
         twist[i] = (v.x, v.y, w.z)
     times = np.array([t for t, _ in msgs], np.float64)
-    out = Odometry(times, pose, twist, np.ones(len(msgs), bool), report)
+    finite = np.all(np.isfinite(pose), 1) & np.all(np.isfinite(twist), 1)
+    if not finite.all():
+        bad = int((~finite).sum())
+        if not finite.any():
+            raise BagError(f"every {ODOMETRY} message on {topic!r} in {path} has a NaN / inf "
+                           f"pose or twist")
+        times, pose, twist = times[finite], pose[finite], twist[finite]
+        report = report._replace(
+            messages=int(finite.sum()), dropped=report.dropped + bad,
+            detail="; ".join(([report.detail] if report.detail else [])
+                             + [f"{bad} messages with a NaN / inf pose or twist dropped"]))
+        _warn(report, stacklevel=3)
+    out = Odometry(times, pose, twist, np.ones(len(times), bool), report)
     if rate is None:
         return out
     grid, valid, (pose, twist) = resample(times, pose, twist, rate=rate, method=method)
@@ -346,7 +383,7 @@ def read_joint_states(path, topic: str, names=None, *, rate: float | None = None
     """
     msgs, report = _read_topic(path, topic, (JOINT_STATE,), time_source, typestore)
     if not msgs:
-        raise BagError(f"no readable {JOINT_STATE} message on {topic!r} in {path}")
+        raise _no_messages(JOINT_STATE, topic, path, report)
     names = tuple(msgs[0][1].name) if names is None else tuple(names)
     pos = np.full((len(msgs), len(names)), np.nan)
     for i, (_, m) in enumerate(msgs):
@@ -450,7 +487,11 @@ def resample(times, *arrays, rate: float, method: str = "bucket", start: float |
     - ``"nearest"``: slot k holds the sample nearest to :math:`t_k`, if within ``tolerance``
       (default half a period).
 
-    Empty slots are zero (False for boolean arrays) and ``valid`` is False there.
+    Empty slots are zero (False for boolean arrays) and ``valid`` is False there. A clock of
+    more than `MAX_RESAMPLE_SLOTS` (10^7) slots is refused with a ValueError naming the rate and
+    the time span, before anything is allocated (a rate in Hz given in slots per nanosecond, or
+    a stray timestamp, would ask for tens of GiB); the readers leave out stray timestamps
+    before resampling (see `OUTLIER_GAP`).
 
     Args:
       times: [T] sample times (s), non-decreasing.
@@ -481,7 +522,15 @@ def resample(times, *arrays, rate: float, method: str = "bucket", start: float |
         raise ValueError("cannot resample an empty stream")
     t0 = float(t[0] if start is None else start)
     t1 = float(t[-1] if stop is None else stop)
-    K = int(math.floor((t1 - t0) * rate + 1e-9)) + 1
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
+        raise ValueError(f"start and stop must be finite with start <= stop; got {t0}, {t1}")
+    slots = (t1 - t0) * float(rate)
+    if not slots < MAX_RESAMPLE_SLOTS:
+        raise ValueError(f"resampling at rate={float(rate):g} Hz over {t1 - t0:.6g} s ({t0:.3f} "
+                         f"to {t1:.3f} s) needs {slots + 1:.3g} slots, more than "
+                         f"MAX_RESAMPLE_SLOTS = {MAX_RESAMPLE_SLOTS:.0e}: lower the rate or "
+                         f"pass start / stop")
+    K = int(math.floor(slots + 1e-9)) + 1
     grid = t0 + np.arange(K) / rate
     src = np.full(K, -1)
     if method == "bucket":
@@ -560,6 +609,14 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     Returns:
       The path written.
 
+    Raises:
+      ValueError naming the record and field: times (of the rows written) not finite, negative,
+      not strictly increasing or beyond the stamp's range (2^32 s for ROS 1, 2^31 s for ROS 2);
+      no row to write; 0 beams, an empty image or no joint; arrays whose shapes do not agree
+      (laser ranges / mask [T, B] with angles [B]; odometry pose / twist [T, 3]; detections xy
+      [T, M, 2] with mask [T, M]; depth and mask [T, H, W]; joint positions [T, J] with J
+      names; valid [T]).
+
     Example:
       >>> write_bag("sim.bag", 1, laser=scans, odometry=odom)
     """
@@ -581,6 +638,9 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     if all(v is None for v in streams.values()):
         raise ValueError("nothing to write: give laser, odometry, detections, depth and/or "
                          "joints")
+    for key, rec in streams.items():
+        if rec is not None:
+            _check_record(key, rec, version)
     names = {"laser": "/scan", "odometry": "/odom", "detections": "/people",
              "depth": "/camera/depth/image_raw", "joints": "/joint_states"}
     names.update(topics or {})
@@ -665,12 +725,69 @@ class _MessageMaker:
         return self.T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z))
 
     def quat_yaw(self, yaw):
-        return self.T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(0.5 * yaw),
-                                                      w=math.cos(0.5 * yaw))
+        with np.errstate(invalid="ignore"):  # a NaN / inf yaw is written as a NaN quaternion
+            z, w = float(np.sin(0.5 * yaw)), float(np.cos(0.5 * yaw))
+        return self.T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=z, w=w)
 
 
 def _ns(t) -> int:
     return int(round(float(t) * 1e9))
+
+
+def _check_record(key: str, rec, version: int):
+    """The checks of `write_bag` on one record (``key``: its argument name)."""
+    times = np.asarray(rec.times)
+    if times.ndim != 1:
+        raise ValueError(f"write_bag: {key}.times must be [T]; got shape {times.shape}")
+    T = times.shape[0]
+
+    def shape(field, want):
+        got = np.shape(getattr(rec, field))
+        if len(got) != len(want) or any(w is not None and g != w for g, w in zip(got, want)):
+            spec = ", ".join("?" if w is None else str(w) for w in want)
+            raise ValueError(f"write_bag: {key}.{field} must be [{spec}] (T = {T} times); got "
+                             f"shape {got}")
+        return got
+
+    if rec.valid is not None:
+        shape("valid", (T,))
+    rows = _rows(rec)
+    if rows.size == 0:
+        raise ValueError(f"write_bag: {key} has no row to write (T = {T}, valid rows: 0)")
+    t = times[rows].astype(np.float64)
+    limit = 2.0**32 if version == 1 else 2.0**31
+    if not np.all(np.isfinite(t)) or np.any(t < 0) or np.any(t >= limit):
+        raise ValueError(f"write_bag: {key}.times must be finite seconds in [0, {limit:.0f}) "
+                         f"(the ROS {version} stamp); got {t[~((t >= 0) & (t < limit))][:3]}")
+    if np.any(np.diff(t) <= 0):
+        i = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise ValueError(f"write_bag: {key}.times must be strictly increasing over the rows "
+                         f"written; row {rows[i + 1]} ({t[i + 1]!r} s) follows {t[i]!r} s")
+    if key == "laser":
+        (B,) = shape("angles", (None,))
+        if B == 0:
+            raise ValueError("write_bag: laser has 0 beams (angles is empty)")
+        shape("ranges", (T, B))
+        shape("mask", (T, B))
+        if not (np.isfinite(rec.range_min) and np.isfinite(rec.range_max)
+                and np.all(np.isfinite(rec.angles))):
+            raise ValueError("write_bag: laser.angles, range_min and range_max must be finite")
+    elif key == "odometry":
+        shape("pose", (T, 3))
+        shape("twist", (T, 3))
+    elif key == "detections":
+        _, M, _ = shape("xy", (T, None, 2))
+        shape("mask", (T, M))
+    elif key == "depth":
+        _, H, W = shape("depth", (T, None, None))
+        if H * W == 0:
+            raise ValueError(f"write_bag: depth images are empty ({H}x{W})")
+        shape("mask", (T, H, W))
+    elif key == "joints":
+        _, J = shape("position", (T, None))
+        if J == 0 or len(rec.names) != J:
+            raise ValueError(f"write_bag: joints.position has {J} columns and joints.names "
+                             f"{len(rec.names)} names; give one name per column, at least one")
 
 
 def _rows(rec):
@@ -833,7 +950,7 @@ def _check_type(topic, msgtype, accepted, path):
 
 
 def _read_topic(path, topic, accepted, time_source, typestore):
-    """[(time s, message)] of one topic, and its `BagReport`."""
+    """[(time s, message)] of one topic, sorted by time, and its `BagReport`."""
     if time_source not in ("header", "bag"):
         raise ValueError(f"time_source must be 'header' or 'bag'; got {time_source!r}")
     path = _check_path(path)
@@ -843,74 +960,172 @@ def _read_topic(path, topic, accepted, time_source, typestore):
         reader.open()
     except Exception as err:  # noqa: BLE001 - any damage to the index: scan the records
         return _read_salvaged(path, topic, accepted, time_source, ts, str(err))
-    out, bad, detail = [], 0, ""
+    out, bad, notes = [], 0, []
+    decode_errors = _decode_errors()
     try:
         available = {n: i.msgtype for n, i in reader.topics.items()}
         name = _resolve_topic(topic, available, path)
-        _check_type(name, available[name], accepted, path)
+        msgtype = available[name]
+        _check_type(name, msgtype, accepted, path)
         conns = [c for c in reader.connections if c.topic == name]
         expected = sum(c.msgcount for c in conns)
+        decode, note = _decoder(reader.typestore, ts, msgtype, ros1=not reader.is2)
+        notes += [note] if note else []
         try:
             for conn, t, raw in reader.messages(connections=conns):
                 try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except Exception:  # noqa: BLE001 - counted and reported
+                    msg = decode(raw)
+                except decode_errors:
                     bad += 1
                     continue
                 out.append((_time_of(t, msg, time_source), msg))
         except Exception as err:  # noqa: BLE001 - storage damaged behind a valid index
-            detail = f"reading stopped: {err}"
-        msgtype = available[name]
+            notes.insert(0, f"reading stopped: {err}")
     finally:
         reader.close()
-    unreadable = max(expected - len(out), bad)
-    if bad and not detail:
-        detail = f"{bad} messages could not be decoded"
-    report = BagReport(str(path), name, msgtype, len(out), unreadable, None, detail)
-    _warn(report)
-    return _sorted(out), report
+    if bad:
+        notes.append(f"{bad} messages could not be decoded")
+    return _finish(path, name, msgtype, out, max(expected - len(out), bad), None, notes, ())
 
 
-def _sorted(out):
-    out.sort(key=lambda x: x[0])
+def _decode_errors() -> tuple:
+    """What a decoder raises on bytes that do not hold its message (a length field pointing past
+    the data, a string that is not UTF-8, ...)."""
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.serde import SerdeError
+
+    return (SerdeError, AnyReaderError, struct.error, IndexError, ValueError, TypeError,
+            KeyError, OverflowError)
+
+
+def _decoder(bag_store, ts, msgtype: str, ros1: bool):
+    """``decode(raw) -> message`` of ``msgtype``, and a note for the report.
+
+    The bag's own definition is used unless the type store ``ts`` knows the type and the bag's
+    definition lacks one of its fields: a bit flipped in a field name would decode every message
+    into one without the field. (A definition with more fields is kept: a ROS 1 header's ``seq``
+    read with a ROS 2 store.)"""
+    store, note = bag_store, ""
+    if (bag_store is not ts and msgtype in ts.fielddefs
+            and not _field_paths(ts.fielddefs, msgtype)
+            <= _field_paths(getattr(bag_store, "fielddefs", {}), msgtype)):
+        store = ts
+        note = (f"the bag's definition of {msgtype} lacks fields of the standard one (damaged); "
+                f"decoded with the standard definition")
+    deserialize = store.deserialize_ros1 if ros1 else store.deserialize_cdr
+    return (lambda raw: deserialize(raw, msgtype)), note
+
+
+def _field_paths(fielddefs: dict, msgtype: str, prefix: str = "", depth: int = 0) -> set:
+    """Dotted names of every field of ``msgtype``, nested types followed."""
+    from rosbags.interfaces import Nodetype
+
+    if msgtype not in fielddefs or depth > 16:
+        return set()
+    out = set()
+    for name, (kind, detail) in fielddefs[msgtype][1]:
+        path = f"{prefix}{name}"
+        out.add(path)
+        if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            kind, detail = detail[0]
+        if kind == Nodetype.NAME:
+            out |= _field_paths(fielddefs, detail, path + ".", depth + 1)
     return out
 
 
-def _warn(report: BagReport):
+def _finish(path, name, msgtype, out, unreadable, stopped_at, notes, damaged):
+    """Sort by time, leave out the messages apart from the stream, build and issue the report."""
+    out.sort(key=lambda x: x[0])
+    apart = _apart(np.array([t for t, _ in out], np.float64))
+    dropped = int(apart.sum())
+    if dropped:
+        times = [t for (t, _), a in zip(out, apart) if a]
+        kept = [t for (t, _), a in zip(out, apart) if not a]
+        notes.append(f"{dropped} messages at times apart from the stream left out (at "
+                     + ", ".join(f"{t:.3f}" for t in times[:5]) + (", ..." if dropped > 5 else "")
+                     + f" s; the stream spans {kept[0]:.3f} to {kept[-1]:.3f} s)")
+        out = [x for x, a in zip(out, apart) if not a]
+    report = BagReport(str(path), name, msgtype, len(out), unreadable, stopped_at,
+                       "; ".join(notes), dropped, tuple(damaged))
+    _warn(report)
+    return out, report
+
+
+def _apart(t: np.ndarray) -> np.ndarray:
+    """[T] bool: the sorted times ``t`` that lie apart from the stream (see `OUTLIER_GAP`)."""
+    out = np.zeros(t.size, bool)
+    if t.size < 3:
+        return out
+    gaps = np.diff(t)
+    cuts = np.flatnonzero(gaps > max(OUTLIER_GAP, 100.0 * float(np.median(gaps)))) + 1
+    if cuts.size == 0:
+        return out
+    parts = np.split(np.arange(t.size), cuts)
+    largest = max(range(len(parts)), key=lambda i: parts[i].size)
+    small = max(2, t.size // 100)
+    for i, part in enumerate(parts):
+        if i != largest and part.size <= small:
+            out[part] = True
+    return out
+
+
+def _warn(report: BagReport, stacklevel: int = 5):
     if not report.complete:
         where = "" if report.stopped_at is None else f"; unreadable from byte {report.stopped_at}"
+        if report.damaged:
+            where += (f"; {len(report.damaged)} damaged records skipped (at byte "
+                      + ", ".join(str(o) for o in report.damaged[:5])
+                      + (", ..." if len(report.damaged) > 5 else "") + ")")
         lost = "unknown" if report.unreadable < 0 else str(report.unreadable)
         warnings.warn(f"{report.path} {report.topic}: read {report.messages} messages, "
                       f"unreadable messages: {lost}{where} ({report.detail})", BagWarning,
-                      stacklevel=4)
+                      stacklevel=stacklevel)
+
+
+def _no_messages(msgtype, topic, path, report: BagReport) -> BagError:
+    """The error of a reader that got no message: where the file stopped, what was damaged."""
+    where = ""
+    if report is not None and report.stopped_at is not None:
+        where += f"; the file is unreadable from byte {report.stopped_at}"
+    if report is not None and report.damaged:
+        where += f"; damaged records at byte {', '.join(str(o) for o in report.damaged[:5])}"
+    if report is not None and report.detail:
+        where += f" ({report.detail})"
+    return BagError(f"no readable {msgtype} message on {topic!r} in {path}{where}")
 
 
 def _read_salvaged(path, topic, accepted, time_source, ts, reason):
     s = _salvage(path, topic)
-    available = {c.topic: c.msgtype for c in s.connections.values()}
-    if not available:
-        raise BagError(f"{path} is not readable ({reason}); no message could be recovered")
+    types = {}
+    for c in s.connections.values():
+        types.setdefault(c.topic, set()).add(c.msgtype)
+    if not types:
+        where = "" if s.stopped_at is None else f"; unreadable from byte {s.stopped_at}"
+        raise BagError(f"{path} is not readable ({reason}); no message could be recovered"
+                       f"{where}")
+    # A damaged connection record may give a topic a second, garbled type: keep the one asked for.
+    available = {t: min(m & set(accepted) or m) for t, m in types.items()}
     name = _resolve_topic(topic, available, path)
     msgtype = available[name]
     _check_type(name, msgtype, accepted, path)
-    ids = {cid for cid, c in s.connections.items() if c.topic == name}
-    deser = _deserializer(s, ts)
+    ids = {cid for cid, c in s.connections.items() if c.topic == name and c.msgtype == msgtype}
+    decode, note = _salvage_decoder(s, ts, ids, msgtype)
+    decode_errors = _decode_errors()
     out, bad = [], 0
     for cid, t, raw in s.messages:
         if cid not in ids:
             continue
         try:
-            msg = deser(raw, s.connections[cid])
-        except Exception:  # noqa: BLE001 - counted and reported
+            msg = decode(raw)
+        except decode_errors:
             bad += 1
             continue
         out.append((_time_of(t, msg, time_source), msg))
     expected = s.counts.get(name)
     unreadable = expected - len(out) if expected is not None else (-1 if not bad else bad)
-    detail = f"{reason}; {s.detail}" if s.detail else reason
-    report = BagReport(str(path), name, msgtype, len(out), unreadable, s.stopped_at, detail)
-    _warn(report)
-    return _sorted(out), report
+    notes = [reason] + ([s.detail] if s.detail else []) + ([note] if note else [])
+    notes += [f"{bad} messages could not be decoded"] if bad else []
+    return _finish(path, name, msgtype, out, unreadable, s.stopped_at, notes, s.damaged)
 
 
 class _Conn(NamedTuple):
@@ -927,26 +1142,39 @@ class _Salvage(NamedTuple):
     stopped_at: int | None
     detail: str
     ros1: bool
+    damaged: tuple | list = ()  # byte offsets of damaged records
 
 
-def _deserializer(s: _Salvage, ts) -> Callable:
-    _, get_typestore, get_types_from_msg = _rosbags_typesys()
-    from rosbags.typesys import Stores, get_types_from_idl
+def _salvage_decoder(s: _Salvage, ts, ids, msgtype):
+    """`_decoder` over the definitions the bag gives for the connections ``ids``; a definition
+    that does not parse is replaced by the type store's."""
+    from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg
+    _, get_typestore, _ = _rosbags_typesys()
 
-    store = get_typestore(Stores.EMPTY)
-    types = dict(ts.fielddefs)
-    for c in s.connections.values():
+    store, types, broken = get_typestore(Stores.EMPTY), {}, False
+    for cid in sorted(ids):
+        c = s.connections[cid]
         try:
             if c.msgdef and c.fmt == "msg":
                 types.update(get_types_from_msg(c.msgdef, c.msgtype))
             elif c.msgdef:
                 types.update(get_types_from_idl(c.msgdef))
-        except Exception:  # noqa: BLE001 - fall back to the default type store's definition
-            pass
-    store.register(types)
-    if s.ros1:
-        return lambda raw, c: store.deserialize_ros1(raw, c.msgtype)
-    return lambda raw, c: store.deserialize_cdr(raw, c.msgtype)
+        except (TypesysError, ValueError, IndexError, KeyError):
+            broken = True
+    try:
+        store.register(types)
+    except (TypesysError, ValueError, KeyError):
+        store, broken = get_typestore(Stores.EMPTY), True
+    if msgtype not in store.fielddefs:
+        if msgtype not in ts.fielddefs:
+            raise BagError(f"the bag's definition of {msgtype} is "
+                           + ("damaged" if broken else "missing")
+                           + " and the type store does not hold it (pass typestore=)")
+        store = ts
+    decode, note = _decoder(store, ts, msgtype, s.ros1)
+    if broken and not note:
+        note = f"a definition of {msgtype} in the bag is damaged"
+    return decode, note
 
 
 def _salvage(path: Path, topic: str | None) -> _Salvage:
@@ -958,8 +1186,8 @@ def _salvage(path: Path, topic: str | None) -> _Salvage:
     return _salvage_mapped(_scan_ros1, path, topic)
 
 
-def _same_topic(a: str, b: str | None) -> bool:
-    return b is not None and a.strip("/") == b.strip("/")
+def _same_topic(a, b: str | None) -> bool:
+    return isinstance(a, str) and b is not None and a.strip("/") == b.strip("/")
 
 
 def _mapped(f: Path):
@@ -971,6 +1199,15 @@ def _mapped(f: Path):
 
 
 # -- ROS 1: records (header length, header fields, data length, data), Bag format 2.0 ----------
+
+# What a damaged record raises while its fields are taken apart: a missing field, a field of the
+# wrong length, text that is not UTF-8.
+_RECORD_ERRORS = (KeyError, IndexError, struct.error, UnicodeDecodeError)
+
+# What decompressing a damaged chunk raises (lz4: RuntimeError; bz2: OSError, EOFError; an
+# unknown compression name: KeyError; a garbled size: MemoryError).
+_DECOMPRESS_ERRORS = (KeyError, RuntimeError, OSError, EOFError, ValueError, MemoryError,
+                      ImportError)
 
 
 def _ros1_fields(buf: bytes) -> dict:
@@ -1003,6 +1240,33 @@ def _ros1_records(buf: bytes, pos: int
         pos = start + dlen
 
 
+def _ros1_next_chunk(buf, pos: int) -> int | None:
+    """Offset of the next chunk record at or after ``pos`` whose header reads whole (fields
+    ``op=5``, ``compression``, ``size`` filling the header length exactly), or None."""
+    while True:
+        p = buf.find(b"\x04\x00\x00\x00op=\x05", pos)
+        if p < 0:
+            return None
+        # rosbags writes op first, rosbag (C++) after compression=...: try the starts before it.
+        for start in range(p - 4, max(p - 4 - 64, pos - 1), -1):
+            (hlen,) = struct.unpack_from("<I", buf, start)
+            if 16 <= hlen <= 256 and start + 8 + hlen <= len(buf) and start + 4 <= p:
+                f = _ros1_fields(buf[start + 4:start + 4 + hlen])
+                if (f.get("op") == b"\x05" and "compression" in f and len(f.get("size", b"")) == 4
+                        and _ros1_fields_length(buf[start + 4:start + 4 + hlen]) == hlen):
+                    return start
+        pos = p + 1
+
+
+def _ros1_fields_length(buf: bytes) -> int:
+    """Bytes the length-prefixed fields of ``buf`` take, walked from its start."""
+    pos = 0
+    while pos + 4 <= len(buf):
+        (n,) = struct.unpack_from("<I", buf, pos)
+        pos += 4 + n
+    return pos
+
+
 def _salvage_mapped(scan, path: Path, topic: str | None) -> _Salvage:
     """Run ``scan(path, buffer, topic)`` over the file memory-mapped, and unmap it."""
     buf = _mapped(path)
@@ -1013,63 +1277,90 @@ def _salvage_mapped(scan, path: Path, topic: str | None) -> _Salvage:
 
 
 def _scan_ros1(path, buf, topic) -> _Salvage:
+    """Connections and messages of a ROS 1 bag read record by record. A damaged record is
+    skipped (its offset listed); when the walk loses the record boundaries it resumes at the
+    next chunk record."""
+    from rosbags.rosbag1.reader import decompressors
     from rosbags.typesys.msg import normalize_msgtype
 
     magic = b"#ROSBAG V2.0\n"
     if buf[:len(magic)] != magic:
-        raise BagError(f"{path} is not a ROS 1 bag (format 2.0): bad magic")
-    conns, msgs = {}, []
+        raise BagError(f"{path} is not a ROS 1 bag (format 2.0): bad magic at byte 0")
+    conns, msgs, orphans, damaged = {}, [], [], []
     stopped, notes = None, []
 
-    def record(op, f, d):
-        if op == 7:  # connection: topic in the record header, type and definition in its data
-            c = _ros1_fields(d)
-            conns[struct.unpack("<I", f["conn"])[0]] = _Conn(
-                f["topic"].decode(), normalize_msgtype(c["type"].decode()),
-                c.get("message_definition", b"").decode(), "msg")
-        elif op == 2:  # message data
-            cid = struct.unpack("<I", f["conn"])[0]
-            if cid in conns and _same_topic(conns[cid].topic, topic):
+    def record(op, f, d, at):
+        try:
+            if op == 7:  # connection: topic in the record header, type and definition in its data
+                c = _ros1_fields(d)
+                (cid,) = struct.unpack("<I", f["conn"])
+                # The first intact copy wins (chunks repeat it, the index at the end too).
+                conns.setdefault(cid, _Conn(f["topic"].decode(),
+                                            normalize_msgtype(c["type"].decode()),
+                                            c.get("message_definition", b"").decode(), "msg"))
+            elif op == 2:  # message data
+                (cid,) = struct.unpack("<I", f["conn"])
                 sec, nsec = struct.unpack("<II", f["time"])
-                msgs.append((cid, sec * 10**9 + nsec, bytes(d)))
+                if cid in conns:
+                    if _same_topic(conns[cid].topic, topic):
+                        msgs.append((cid, sec * 10**9 + nsec, bytes(d)))
+                elif topic is not None:  # its connection record may come later (the index)
+                    orphans.append((cid, sec * 10**9 + nsec, bytes(d)))
+        except _RECORD_ERRORS:
+            damaged.append(at)
 
-    def chunk(data, base):
+    def chunk(data, base, whole):
         """Records of a chunk's (uncompressed) data; returns the offset of a cut record."""
         for off, _, f, d, dlen in _ros1_records(data, 0):
             if d is None or len(d) < dlen:
                 return base + off
-            record(f["op"][0] if f.get("op") else None, f, d)
+            record(f["op"][0] if f.get("op") else None, f, d, base + off if whole else base)
         return None
 
-    for off, start, f, d, dlen in _ros1_records(buf, len(magic)):
-        op = f["op"][0] if f.get("op") else None
-        cut = d is None or len(d) < dlen
-        if op == 5:
-            comp = f.get("compression", b"none").decode()
-            if comp == "none":
-                # A cut uncompressed chunk still holds whole message records before the cut.
-                at = chunk(d or b"", start)
-                if cut:
-                    stopped = at if at is not None else off
+    pos = len(magic)
+    while pos is not None:
+        resume = None
+        for off, start, f, d, dlen in _ros1_records(buf, pos):
+            op = f["op"][0] if f.get("op") else None
+            cut = d is None or len(d) < dlen
+            if op == 5:
+                comp = f.get("compression", b"none").decode(errors="replace")
+                if comp == "none":
+                    # A cut uncompressed chunk still holds whole message records before the cut.
+                    at = chunk(d or b"", start, True)
+                    if cut:
+                        stopped = at if at is not None else off
+                elif not cut:
+                    try:
+                        data = decompressors[comp](d)
+                    except _DECOMPRESS_ERRORS:
+                        damaged.append(off)
+                        notes.append(f"a {comp} chunk could not be decompressed")
+                    else:
+                        if chunk(data, off, False) is not None:
+                            damaged.append(off)
+                else:
+                    stopped = off
+                    notes.append(f"a {comp}-compressed chunk is cut")
             elif not cut:
-                try:
-                    from rosbags.rosbag1.reader import decompressors
-
-                    chunk(decompressors[comp](d), start)
-                except Exception:  # noqa: BLE001 - reported
-                    notes.append(f"a {comp} chunk could not be decompressed")
-            else:
-                stopped = off
-                notes.append(f"a {comp}-compressed chunk is cut")
-        elif not cut:
-            record(op, f, d)
-        if cut:
-            stopped = off if stopped is None else stopped
-            break
+                record(op, f, d, off)
+            if cut:
+                stopped = off if stopped is None else stopped
+                # A garbled length may have sent the walk past the end: look for a next chunk.
+                resume = _ros1_next_chunk(buf, off + 1)
+                if resume is not None:
+                    damaged.append(off)
+                    notes.append(f"records from byte {off} to {resume} skipped")
+                    stopped = None
+                break
+        pos = resume
+    msgs += [m for m in orphans if m[0] in conns and _same_topic(conns[m[0]].topic, topic)]
     detail = f"file of {len(buf)} bytes read record by record"
+    if damaged:
+        detail += f", {len(damaged)} damaged records skipped"
     if notes:
         detail += " (" + ", ".join(sorted(set(notes))) + ")"
-    return _Salvage(conns, msgs, {}, stopped, detail, True)
+    return _Salvage(conns, msgs, {}, stopped, detail, True, damaged)
 
 
 # -- ROS 2: metadata.yaml + MCAP or sqlite3 storage ---------------------------------------------
@@ -1080,11 +1371,12 @@ def _ros2_metadata(path: Path) -> dict | None:
     if not meta.exists():
         return None
     from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
 
     try:
         data = YAML(typ="safe").load(meta.read_text())
         return data["rosbag2_bagfile_information"]
-    except Exception as err:  # noqa: BLE001
+    except (YAMLError, UnicodeDecodeError, KeyError, TypeError) as err:
         raise BagError(f"{meta} is not readable: {err}") from None
 
 
@@ -1099,14 +1391,18 @@ def _salvage_ros2(path: Path, topic: str | None) -> _Salvage:
         return _salvage_ros2_files(files, {}, ["no metadata.yaml (recording not closed)"],
                                    topic)
     counts = {}
-    for entry in info.get("topics_with_message_count", []):
-        counts[entry["topic_metadata"]["name"]] = int(entry["message_count"])
-    return _salvage_ros2_files([path / f for f in info.get("relative_file_paths", [])],
-                               counts, [], topic)
+    try:
+        for entry in info.get("topics_with_message_count", []):
+            counts[entry["topic_metadata"]["name"]] = int(entry["message_count"])
+        files = [path / f for f in info.get("relative_file_paths", [])]
+    except (AttributeError, KeyError, TypeError, ValueError) as err:
+        raise BagError(f"{path / 'metadata.yaml'} is not a rosbag2 description: {err!r}"
+                       ) from None
+    return _salvage_ros2_files(files, counts, [], topic)
 
 
 def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
-    conns, msgs, stopped = {}, [], None
+    conns, msgs, stopped, damaged = {}, [], None, []
     for f in files:
         if not f.exists():
             notes.append(f"{f.name} is missing")
@@ -1118,26 +1414,62 @@ def _salvage_ros2_files(files, counts, notes, topic) -> _Salvage:
         msgs.extend((cid + offset, t, raw) for cid, t, raw in part.messages)
         if part.stopped_at is not None and stopped is None:
             stopped = part.stopped_at
+        damaged += list(part.damaged)
         if part.detail:
             notes.append(part.detail)
-    return _Salvage(conns, msgs, counts, stopped, "; ".join(notes), False)
+    return _Salvage(conns, msgs, counts, stopped, "; ".join(notes), False, damaged)
 
 
 def _scan_mcap(f, buf, topic) -> _Salvage:
+    """Schemas, channels and messages of an MCAP file read record by record; a damaged record
+    (or a chunk that does not decompress) is skipped and its offset listed."""
     if buf[:8] != b"\x89MCAP0\r\n":
-        raise BagError(f"{f} is not an MCAP file: bad magic")
-    schemas, conns, msgs = {}, {}, []
+        raise BagError(f"{f} is not an MCAP file: bad magic at byte 0")
+    schemas, conns, msgs, orphans, damaged = {}, {}, [], [], []
     stopped, notes = None, []
 
     def string(b, p):
         (n,) = struct.unpack_from("<I", b, p)
-        return b[p + 4:p + 4 + n].decode(), p + 4 + n
+        if p + 4 + n > len(b):
+            raise IndexError("string runs past its record")
+        return bytes(b[p + 4:p + 4 + n]).decode(), p + 4 + n
+
+    def record(op, body, at):
+        try:
+            if op == 0x03:
+                (sid,) = struct.unpack_from("<H", body, 0)
+                name, p = string(body, 2)
+                enc, p = string(body, p)
+                (dl,) = struct.unpack_from("<I", body, p)
+                schemas.setdefault(sid, (name, enc, bytes(body[p + 4:p + 4 + dl]).decode()))
+            elif op == 0x04:
+                cid, sid = struct.unpack_from("<HH", body, 0)
+                channel_topic, p = string(body, 4)
+                name, enc, text = schemas.get(sid, ("", "", ""))
+                # The first copy wins (the summary section repeats the channels).
+                conns.setdefault(cid, _Conn(channel_topic, name, text,
+                                            "idl" if enc == "ros2idl" else "msg"))
+            elif op == 0x05:
+                cid, _, log_time, _ = struct.unpack_from("<HIQQ", body, 0)
+                if cid in conns:
+                    if _same_topic(conns[cid].topic, topic):
+                        msgs.append((cid, log_time, bytes(body[22:])))
+                elif topic is not None:
+                    orphans.append((cid, log_time, bytes(body[22:])))
+        except _RECORD_ERRORS:
+            damaged.append(at)
 
     def records(b, pos, base):
+        """Records of ``b`` from ``pos``; ``base``: the file offset of ``b`` (or of the
+        compressed chunk it came from, when ``whole`` offsets are not known: negative)."""
         nonlocal stopped
         while pos < len(b):
+            at = base + pos if base >= 0 else -base - 1
             if pos + 9 > len(b):
-                stopped = base + pos if stopped is None else stopped
+                if base >= 0:
+                    stopped = at if stopped is None else stopped
+                else:
+                    damaged.append(at)
                 return
             op = b[pos]
             (n,) = struct.unpack_from("<Q", b, pos + 1)
@@ -1145,67 +1477,75 @@ def _scan_mcap(f, buf, topic) -> _Salvage:
             if len(body) < n:
                 if op == 0x06 and len(body) >= 40:
                     # A cut uncompressed chunk: read the whole records it still holds.
-                    p = 28
-                    comp, p = string(body, p)
-                    if comp == "":
-                        records(body[p + 8:], 0, base + pos + 9 + p + 8)
-                    else:
-                        notes.append(f"a {comp} chunk is cut")
-                stopped = base + pos if stopped is None else stopped
-                return
-            if op == 0x03:
-                (sid,) = struct.unpack_from("<H", body, 0)
-                name, p = string(body, 2)
-                enc, p = string(body, p)
-                (dl,) = struct.unpack_from("<I", body, p)
-                schemas[sid] = (name, enc, body[p + 4:p + 4 + dl].decode())
-            elif op == 0x04:
-                cid, sid = struct.unpack_from("<HH", body, 0)
-                channel_topic, p = string(body, 4)
-                name, enc, text = schemas.get(sid, ("", "", ""))
-                conns[cid] = _Conn(channel_topic, name, text,
-                                   "idl" if enc == "ros2idl" else "msg")
-            elif op == 0x05:
-                cid, _, log_time, _ = struct.unpack_from("<HIQQ", body, 0)
-                if cid in conns and _same_topic(conns[cid].topic, topic):
-                    msgs.append((cid, log_time, bytes(body[22:])))
-            elif op == 0x06:
-                comp, p = string(body, 28)
-                (size,) = struct.unpack_from("<Q", body, p)
-                data = body[p + 8:p + 8 + size]
-                if comp == "":
-                    records(data, 0, base + pos + 9 + p + 8)
-                else:
                     try:
-                        if comp == "lz4":
-                            from lz4.frame import decompress
-                        else:
-                            from compression.zstd import decompress  # Python >= 3.14
-                        records(decompress(data), 0, -1)
-                    except Exception:  # noqa: BLE001
-                        notes.append(f"a {comp} chunk could not be decompressed")
+                        comp, p = string(body, 28)
+                    except _RECORD_ERRORS:
+                        comp, p = None, 0
+                    if comp == "":
+                        records(body[p + 8:], 0, base + pos + 9 + p + 8 if base >= 0 else base)
+                    elif comp is not None:
+                        notes.append(f"a {comp} chunk is cut")
+                if base >= 0:
+                    stopped = at if stopped is None else stopped
+                else:
+                    damaged.append(at)
+                return
+            if op == 0x06:
+                chunk(body, at, base + pos + 9 if base >= 0 else base)
+            else:
+                record(op, body, at)
             pos += 9 + n
 
+    def chunk(body, at, body_base):
+        try:
+            comp, p = string(body, 28)
+            (size,) = struct.unpack_from("<Q", body, p)
+        except _RECORD_ERRORS:
+            damaged.append(at)
+            return
+        data = body[p + 8:p + 8 + size]
+        if comp == "":
+            records(data, 0, body_base + p + 8 if body_base >= 0 else body_base)
+            return
+        try:
+            if comp == "lz4":
+                from lz4.frame import decompress
+            else:
+                from compression.zstd import decompress  # Python >= 3.14
+            data = decompress(data)
+        except _DECOMPRESS_ERRORS:
+            damaged.append(at)
+            notes.append(f"a {comp} chunk could not be decompressed")
+            return
+        records(data, 0, -at - 1)
+
     records(buf, 8, 0)
+    msgs += [m for m in orphans if m[0] in conns and _same_topic(conns[m[0]].topic, topic)]
     detail = f"{f.name}: {len(buf)} bytes read record by record"
+    if damaged:
+        detail += f", {len(damaged)} damaged records skipped"
     if notes:
         detail += " (" + ", ".join(sorted(set(notes))) + ")"
-    return _Salvage(conns, msgs, {}, stopped, detail, False)
+    return _Salvage(conns, msgs, {}, stopped, detail, False, damaged)
 
 
 def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
     """Rows of a damaged ``.db3`` by id, from a copy whose page count matches its length."""
     buf = bytearray(f.read_bytes())
     if not buf.startswith(b"SQLite format 3\x00") or len(buf) < 100:
-        raise BagError(f"{f} is not an sqlite3 file")
+        raise BagError(f"{f} is not an sqlite3 file: bad magic at byte 0")
     (page,) = struct.unpack_from(">H", buf, 16)
     page = 65536 if page == 1 else page
+    if page < 512 or page & (page - 1):
+        raise BagError(f"{f}: the page size at byte 16 ({page}) is not a power of two "
+                       f">= 512; the database header is damaged")
     pages = len(buf) // page
     whole = pages * page
     stopped = whole if whole < len(buf) or _sqlite_short(buf, pages) else None
     buf = buf[:whole]
     buf[28:32] = struct.pack(">I", pages)
     conns, msgs, notes = {}, [], []
+    bad_rows = 0
     tmp = tempfile.mkdtemp(prefix="jaxtrack-bag-")
     try:
         copy = Path(tmp) / "salvage.db3"
@@ -1217,13 +1557,15 @@ def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
                 for typ, enc, text in con.execute(
                         "SELECT topic_type, encoding, encoded_message_definition "
                         "FROM message_definitions"):
-                    defs[typ] = (text, "idl" if enc == "ros2idl" else "msg")
+                    if isinstance(typ, str) and isinstance(text, str):
+                        defs[typ] = (text, "idl" if enc == "ros2idl" else "msg")
             except sqlite3.Error:
                 pass
             try:
                 for cid, name, typ in con.execute("SELECT id, name, type FROM topics"):
-                    text, fmt = defs.get(typ, ("", "msg"))
-                    conns[cid] = _Conn(name, typ, text, fmt)
+                    if isinstance(name, str) and isinstance(typ, str):
+                        text, fmt = defs.get(typ, ("", "msg"))
+                        conns[cid] = _Conn(name, typ, text, fmt)
             except sqlite3.Error as err:
                 notes.append(f"topics table unreadable ({err})")
             wanted = {cid for cid, c in conns.items() if _same_topic(c.topic, topic)}
@@ -1239,7 +1581,10 @@ def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
                 else:
                     misses = 0
                     if row[0] in wanted:
-                        msgs.append((row[0], row[1], bytes(row[2])))
+                        if isinstance(row[1], int) and isinstance(row[2], bytes):
+                            msgs.append((row[0], row[1], row[2]))
+                        else:
+                            bad_rows += 1
                 rowid += 1
         finally:
             con.close()
@@ -1247,6 +1592,8 @@ def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
         notes.append(f"database unreadable ({err})")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    if bad_rows:
+        notes.append(f"{bad_rows} rows without a time or data")
     detail = f"{f.name}: {len(buf)} bytes, messages read row by row"
     if notes:
         detail += " (" + ", ".join(notes) + ")"
@@ -1256,4 +1603,3 @@ def _salvage_sqlite(f: Path, topic: str | None) -> _Salvage:
 def _sqlite_short(buf, pages) -> bool:
     (declared,) = struct.unpack_from(">I", buf, 28)
     return declared > pages
-

@@ -421,3 +421,159 @@ def test_importing_bags_does_not_import_rosbags():
             "sys.exit(1 if any(m.split('.')[0] == 'rosbags' for m in sys.modules) else 0)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
+
+
+def test_write_bag_refuses_bad_times_empty_scans_and_shape_mismatches(tmp_path):
+    laser, odom, det, depth = _records()
+    p = tmp_path / "w.bag"
+
+    def times(t):
+        return laser._replace(times=t)
+
+    bad_t = laser.times.copy()
+    bad_t[3] = np.nan
+    with pytest.raises(ValueError, match=r"laser\.times must be finite"):
+        bags.write_bag(p, 1, laser=times(bad_t))
+    with pytest.raises(ValueError, match=r"laser\.times must be finite seconds in \[0"):
+        bags.write_bag(p, 1, laser=times(laser.times - 2e9))
+    bad_t = laser.times.copy()
+    bad_t[5] = bad_t[4]
+    with pytest.raises(ValueError, match=r"laser\.times must be strictly increasing.*row 5"):
+        bags.write_bag(p, 1, laser=times(bad_t))
+    with pytest.raises(ValueError, match="ROS 2 stamp"):
+        bags.write_bag(tmp_path / "w2", 2, laser=times(laser.times + 2.0**31))
+    with pytest.raises(ValueError, match="laser has 0 beams"):
+        bags.write_bag(p, 1, laser=laser._replace(angles=laser.angles[:0],
+                                                  ranges=laser.ranges[:, :0],
+                                                  mask=laser.mask[:, :0]))
+    with pytest.raises(ValueError, match=r"laser\.mask must be \[24, 40\]"):
+        bags.write_bag(p, 1, laser=laser._replace(mask=laser.mask[:, 1:]))
+    with pytest.raises(ValueError, match=r"odometry\.pose must be \[24, 3\]"):
+        bags.write_bag(p, 1, odometry=odom._replace(pose=odom.pose[:-1]))
+    with pytest.raises(ValueError, match=r"detections\.mask must be \[24, 5\]"):
+        bags.write_bag(p, 1, detections=det._replace(mask=det.mask[:, :2]))
+    with pytest.raises(ValueError, match=r"depth\.mask must be"):
+        bags.write_bag(p, 1, depth=depth._replace(mask=depth.mask[:, :1]))
+    with pytest.raises(ValueError, match="no row to write"):
+        bags.write_bag(p, 1, laser=laser._replace(valid=np.zeros(T, bool)))
+    with pytest.raises(ValueError, match=r"joints\.position has 2 columns and joints\.names 1"):
+        bags.write_bag(p, 1, joints=_joints()._replace(names=("camera_pan",)))
+    assert not p.exists()
+    # Invalid rows are not written, so their times are not checked.
+    bad_t = laser.times.copy()
+    bad_t[2] = np.nan
+    valid = np.ones(T, bool)
+    valid[2] = False
+    got = bags.read_laser(bags.write_bag(p, 1, laser=laser._replace(times=bad_t, valid=valid)),
+                          "/scan")
+    assert got.report.complete and got.report.messages == T - 1
+
+
+def test_resample_refuses_a_huge_clock_naming_rate_and_span():
+    t = 1.7e9 + np.arange(5.0)
+    x = np.zeros((5, 512), np.float32)
+    with pytest.raises(ValueError, match=r"rate=1e\+09 Hz over 4 s .*MAX_RESAMPLE_SLOTS"):
+        bags.resample(t, x, rate=1e9)
+    with pytest.raises(ValueError, match="MAX_RESAMPLE_SLOTS"):
+        bags.resample(t, x, rate=10.0, stop=t[0] + 1e7)
+    grid, valid, _ = bags.resample(t, x, rate=(bags.MAX_RESAMPLE_SLOTS - 1) / 4.0 / 10)
+    assert grid.size < bags.MAX_RESAMPLE_SLOTS and valid.sum() == 5
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_a_stray_timestamp_is_left_out_and_counted(tmp_path, kind):
+    laser, *_ = _records(7)
+    stray = laser.times.copy()
+    stray[-1] += 2.0**20          # the seconds' bit 20 flipped: 12 days later
+    name, version, storage = next(k for k in KINDS if k[0] == kind)
+    p = bags.write_bag(tmp_path / (f"{name}.bag" if version == 1 else name), version,
+                       laser=laser._replace(times=stray), storage=storage)
+    with pytest.warns(bags.BagWarning, match="1 messages at times apart from the stream"):
+        got = bags.read_laser(p, "/scan", rate=25.0)
+    assert got.report.dropped == 1 and got.report.messages == T - 1
+    assert got.times[-1] - got.times[0] < 3.0 and got.valid.sum() == T - 1
+    np.testing.assert_array_equal(got.ranges[got.valid], laser.ranges[:-1])
+    # A pause between two substantial parts of a recording is kept.
+    pause = laser.times + np.where(np.arange(T) >= T // 2, 600.0, 0.0)
+    p2 = bags.write_bag(tmp_path / ("p.bag" if version == 1 else "p"), version,
+                        laser=laser._replace(times=pause), storage=storage)
+    got = bags.read_laser(p2, "/scan")
+    assert got.report.complete and got.times.size == T
+
+
+def test_nonfinite_odometry_is_dropped_and_counted(tmp_path):
+    _, odom, *_ = _records(8)
+    pose, twist = odom.pose.copy(), odom.twist.copy()
+    pose[3, 0] = np.nan
+    pose[7, 2] = np.inf           # written as a NaN quaternion
+    twist[9, 1] = np.nan
+    p = bags.write_bag(tmp_path / "o.bag", 1, odometry=odom._replace(pose=pose, twist=twist))
+    with pytest.warns(bags.BagWarning, match="3 messages with a NaN / inf pose or twist dropped"):
+        got = bags.read_odometry(p, "/odom")
+    keep = np.setdiff1d(np.arange(T), [3, 7, 9])
+    assert got.report.dropped == 3 and got.report.messages == T - 3
+    np.testing.assert_array_equal(got.pose[:, :2], odom.pose[keep, :2])
+    np.testing.assert_array_equal(got.twist, odom.twist[keep])
+    np.testing.assert_allclose(got.times, odom.times[keep], atol=1e-6)
+
+
+def test_ros1_damaged_definition_is_decoded_with_the_standard_one(written, tmp_path):
+    (_, odom, *_), paths = written
+    data = paths["ros1"].read_bytes()
+    assert data.count(b"Quaternion orientation") >= 2   # in a chunk and in the index
+    p = tmp_path / "def.bag"
+    p.write_bytes(data.replace(b"Quaternion orientation", b"Quaternion orientatioN"))
+    with pytest.warns(bags.BagWarning, match="lacks fields of the standard one"):
+        got = bags.read_odometry(p, "/odom")
+    np.testing.assert_array_equal(got.pose[:, :2], odom.pose[:, :2])
+    np.testing.assert_allclose(got.pose[:, 2], odom.pose[:, 2], rtol=0, atol=1e-12)
+
+
+def test_ros1_garbled_record_length_is_skipped_and_reading_resumes(written, tmp_path):
+    (laser, *_), paths = written
+    data = bytearray(paths["ros1"].read_bytes())
+    # The third chunk record's header length made huge: the walk resumes at the next chunk.
+    chunks = [i - 4 for i in range(len(data)) if data.startswith(b"\x04\x00\x00\x00op=\x05", i)]
+    at = chunks[2]
+    data[at:at + 4] = (2**31).to_bytes(4, "little")
+    p = tmp_path / "garbled.bag"
+    p.write_bytes(bytes(data))
+    with pytest.warns(bags.BagWarning, match="damaged records skipped"):
+        got = bags.read_laser(p, "/scan")
+    r = got.report
+    assert at in r.damaged and r.stopped_at is None and f"from byte {at}" in r.detail
+    assert 0 < r.messages < T
+    idx = np.searchsorted(laser.times, got.times - 1e-6)
+    assert idx[-1] == T - 1                  # messages after the damaged chunk were read
+    np.testing.assert_array_equal(got.ranges, laser.ranges[idx])
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_unreadable_bag_error_names_file_and_offset(written, tmp_path, kind):
+    _, paths = written
+    bad = _cut(paths[kind], tmp_path / paths[kind].name, 1.0)
+    f = bad if bad.is_file() else next(x for x in bad.iterdir() if x.suffix in (".db3", ".mcap"))
+    data = bytearray(f.read_bytes())
+    data[:16] = bytes(16)
+    f.write_bytes(bytes(data))
+    with pytest.raises(bags.BagError, match=rf"{f.name}.*bad magic at byte 0"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", bags.BagWarning)
+            bags.read_laser(bad, "/scan")
+
+
+def test_cli_track_on_a_damaged_bag_prints_one_line_and_exits_2(written, tmp_path, capsys):
+    from sims import cli
+
+    _, paths = written
+    bad = tmp_path / "damaged.bag"
+    data = bytearray(paths["ros1"].read_bytes())
+    data[:4096] = bytes(4096)
+    bad.write_bytes(bytes(data))
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["track", "--bag", str(bad), "--laser-topic", "/scan",
+                  "--out", str(tmp_path / "out")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxtrack track: ") and "damaged.bag" in err
+    assert err.count("\n") == 1 and "Traceback" not in err
