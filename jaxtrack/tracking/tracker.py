@@ -30,6 +30,15 @@ each with its own noise, seed 003):
 People (seed 003): `is_walking` thresholds the speed at 0.1 m/s; the heading follows the
 velocity while walking, directly or through seed 002's adaptive AR filter.
 
+Motion (``config.motion``): ``"cv"`` is the constant-velocity model above; ``"imm"`` is an
+interacting multiple model (`jaxtrack.filters.imm`) of a *walking* mode (the same constant
+velocity) and a *standing* mode (velocity zero, position a slow random walk), the two motions of
+people trackers such as SPENCER's. Each track then also carries its mode-matched Gaussians and
+log mode probabilities (``Tracks.modes``); gating and association read the moment-matched
+combined prediction (the usual IMM-JPDA / IMM-GNN approximation), the chosen association updates
+every mode, and ``mean`` / ``cov`` stay the combined estimate that management and every consumer
+read (`predict_modes`, `associate`).
+
 `step` chains five stages, each a public function with a named result, which a closed loop may
 also call one by one (e.g. to read the association of a scan) -- Stone Soup's tracker loop::
 
@@ -52,7 +61,7 @@ from jax import lax
 
 from jaxtrack import _checks, association
 from jaxtrack.filters import heading as heading_filter
-from jaxtrack.filters import ukf
+from jaxtrack.filters import imm, ukf
 from jaxtrack.filters.kalman import Gaussian
 from jaxtrack.models import measurement, motion
 from jaxtrack.tracking import appearance
@@ -60,11 +69,14 @@ from jaxtrack.tracking import appearance
 Array = jax.Array
 
 __all__ = ["TrackerConfig", "TrackerParams", "Tracks", "Detections", "init", "step", "run",
-           "is_walking", "make_detections", "FREE", "TENTATIVE", "CONFIRMED",
-           "Hypotheses", "Association", "Births", "predict", "hypothesise", "associate",
+           "is_walking", "make_detections", "FREE", "TENTATIVE", "CONFIRMED", "WALKING",
+           "STANDING", "Hypotheses", "Association", "Births", "predict", "predict_modes",
+           "hypothesise", "associate",
            "associate_gnn", "associate_jpda", "associate_nn_jpda", "manage", "births"]
 
 FREE, TENTATIVE, CONFIRMED = 0, 1, 2
+WALKING, STANDING = 0, 1
+"""Indices of the modes of ``motion="imm"`` in ``Tracks.modes``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +89,9 @@ class TrackerConfig:
       jpda_method: "exact" or "lbp" (for "jpda" and "nn_jpda").
       filter: "kf" or "ukf".
       heading: "velocity" or "ar" (seed 002's adaptive AR filter).
+      motion: "cv" (constant velocity) or "imm" (walking / standing IMM, see the module
+        docstring; it predicts with the Kalman filter whatever ``filter`` says: both give the
+        same moments for its linear modes).
       confirm_hits, confirm_window: M-of-N confirmation.
       max_misses, max_tentative_misses: consecutive misses before deletion.
       max_position_std: delete a track whose position std (sqrt of the largest position
@@ -98,6 +113,7 @@ class TrackerConfig:
     jpda_method: str = "exact"
     filter: str = "kf"
     heading: str = "velocity"
+    motion: str = "cv"
     confirm_hits: int = 3
     confirm_window: int = 5
     max_misses: int = 5
@@ -112,6 +128,7 @@ class TrackerConfig:
         _checks.check_options("jpda_method", (self.jpda_method,), ("exact", "lbp"))
         _checks.check_options("filter", (self.filter,), ("kf", "ukf"))
         _checks.check_options("heading", (self.heading,), ("velocity", "ar"))
+        _checks.check_options("motion", (self.motion,), ("cv", "imm"))
         if self.capacity < 1:
             raise ValueError(f"capacity must be >= 1; got {self.capacity}")
         if not 1 <= self.confirm_hits <= self.confirm_window <= 30:
@@ -120,6 +137,11 @@ class TrackerConfig:
             raise ValueError("max_misses and max_tentative_misses must be >= 1")
         if not self.merge_distance >= 0:
             raise ValueError(f"merge_distance must be >= 0; got {self.merge_distance}")
+
+    @property
+    def num_modes(self) -> int:
+        """Motion modes per track in ``Tracks.modes``: 2 for "imm", 0 for "cv"."""
+        return 2 if self.motion == "imm" else 0
 
 
 jax.tree_util.register_static(TrackerConfig)
@@ -142,7 +164,13 @@ class TrackerParams(NamedTuple):
       walking_speed: standing / walking threshold (m/s).
       appearance_lr: learning rate of the online colour classifier.
       dt: scan period (s).
+      mode_logits: [2, 2] logits of the IMM mode transition per scan (row i: from mode i,
+        `WALKING` or `STANDING`; ``jaxtrack.filters.imm.transition_from_logits``).
+      log_q_standing: log process noise of the standing mode (m^2/s).
+      logit_init_standing: logit of a new track's standing probability.
       config: `TrackerConfig` (static).
+
+    The last three are read only with ``config.motion = "imm"``.
     """
 
     log_q: Array
@@ -158,18 +186,30 @@ class TrackerParams(NamedTuple):
     walking_speed: Array
     appearance_lr: Array
     dt: Array
+    mode_logits: Array
+    log_q_standing: Array
+    logit_init_standing: Array
     config: TrackerConfig
 
     @staticmethod
     def create(config: TrackerConfig = TrackerConfig(), *, dt=0.1, q=0.5,
                r_std=(0.1, 0.3, 0.2), p_detect=0.9, clutter_density=0.01, init_speed_std=1.0,
                gamma=1.0, alpha=0.0, beta=0.0, birth_confidence=0.0, gate_prob=0.9999,
-               walking_speed=0.1, appearance_lr=0.5, dtype=jnp.float32) -> "TrackerParams":
+               walking_speed=0.1, appearance_lr=0.5,
+               mode_transition=((0.98, 0.02), (0.02, 0.98)), q_standing=0.005,
+               init_standing=0.5, dtype=jnp.float32) -> "TrackerParams":
         """Parameters from natural values. Defaults: seed 003's sensor noise (ceiling cameras
         0.1 m, RGB-D 0.3 m, laser legs 0.2 m) and walking threshold 0.1 m/s; a wide gate
         (0.9999): with 0.99 one noisy detection that bends a velocity estimate can put the next
         detection outside the gate, and the person is re-acquired by a new track (an identity
         switch), as measured in the crossing tests.
+
+        The IMM (``motion="imm"``): ``mode_transition`` [2, 2], the probabilities of going
+        from mode i (row; `WALKING`, `STANDING`) to mode j per scan, entries in (0, 1), rows
+        summing to one (default: either motion lasts 5 s on average at 10 Hz); ``q_standing``
+        the standing mode's process noise (m^2/s, > 0: a position std of 2.2 cm per 0.1 s);
+        ``init_standing`` in (0, 1), a new track's standing probability. To force one mode
+        (transition probabilities 0 or 1) set the logits of the returned params directly.
 
         Example:
           >>> params = TrackerParams.create(TrackerConfig(association="gnn"), r_std=(0.2,))
@@ -183,8 +223,8 @@ class TrackerParams(NamedTuple):
         positive = [x for x in (q, clutter_density, init_speed_std, dt, r_std) if concrete(x)]
         # Written so that NaN fails too (NaN <= 0 is False).
         if not all(np.all(np.asarray(x, float) > 0) and np.all(np.isfinite(x)) for x in positive):
-            raise ValueError("q, r_std, clutter_density, init_speed_std and dt must be finite "
-                             "and > 0")
+            raise ValueError("q, r_std, clutter_density, init_speed_std and dt must be > 0 "
+                             "and finite")
         for name, x in (("gamma", gamma), ("alpha", alpha), ("beta", beta),
                         ("birth_confidence", birth_confidence), ("walking_speed", walking_speed),
                         ("appearance_lr", appearance_lr)):
@@ -192,12 +232,27 @@ class TrackerParams(NamedTuple):
                 raise ValueError(f"{name} must be finite; got {x!r}")
         if concrete(gate_prob) and not 0 < gate_prob < 1:
             raise ValueError(f"gate_prob must be in (0, 1); got {gate_prob}")
+        _checks.check_shape("mode_transition", mode_transition, (2, 2),
+                            "[2, 2] walking / standing transition probabilities")
+        if concrete(mode_transition):
+            a = np.asarray(mode_transition, float)
+            if not np.all((a > 0) & (a < 1)):
+                raise ValueError("mode_transition entries must be finite probabilities in "
+                                 f"(0, 1); got {a.tolist()}")
+            if np.max(np.abs(a.sum(1) - 1)) > 1e-6:
+                raise ValueError(f"each row of mode_transition must sum to 1; got {a.tolist()}")
+        if concrete(q_standing) and not (np.isfinite(q_standing) and q_standing > 0):
+            raise ValueError(f"q_standing must be finite and > 0; got {q_standing}")
+        if concrete(init_standing) and not 0 < init_standing < 1:
+            raise ValueError(f"init_standing must be in (0, 1); got {init_standing}")
         f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
         return TrackerParams(
             f(jnp.log(q)), f(jnp.log(jnp.asarray(r_std))),
             f(jnp.log(p_detect) - jnp.log1p(-p_detect)), f(jnp.log(clutter_density)),
             f(jnp.log(init_speed_std)), f(gamma), f(alpha), f(beta), f(birth_confidence),
-            f(gate_prob), f(walking_speed), f(appearance_lr), f(dt), config)
+            f(gate_prob), f(walking_speed), f(appearance_lr), f(dt),
+            f(jnp.log(jnp.asarray(mode_transition))), f(jnp.log(q_standing)),
+            f(jnp.log(init_standing) - jnp.log1p(-init_standing)), config)
 
 
 class Tracks(NamedTuple):
@@ -212,6 +267,12 @@ class Tracks(NamedTuple):
       appearance: per-track colour classifiers.
       next_id: scalar int32, the id the next new track gets.
       num_dropped: scalar int32, births that found no free slot.
+      modes: `jaxtrack.filters.imm.IMMState` of every slot, means [K, D, 4], covs
+        [K, D, 4, 4], log_mode_probs [K, D], with D = ``config.num_modes`` (2 for
+        ``motion="imm"``: `WALKING`, `STANDING`; 0 for "cv"). ``mean`` / ``cov`` are their
+        combined (moment-matched) estimate. A track of age 0 (just born, or placed by hand
+        with ``_replace`` as `jaxtrack.tracking.user.multi_target` places its user) starts its
+        modes from ``mean`` / ``cov`` in `predict_modes`.
     """
 
     mean: Array
@@ -226,6 +287,7 @@ class Tracks(NamedTuple):
     appearance: appearance.Appearance
     next_id: Array
     num_dropped: Array
+    modes: imm.IMMState
 
 
 class Detections(NamedTuple):
@@ -272,11 +334,15 @@ def init(config: TrackerConfig = TrackerConfig(), dtype=jnp.float32) -> Tracks:
     Example:
       >>> tracks = init(TrackerConfig(capacity=8))
     """
-    K = config.capacity
+    K, D = config.capacity, config.num_modes
     zi = jnp.zeros(K, jnp.int32)
+    modes = imm.IMMState(jnp.zeros((K, D, 4), dtype),
+                         jnp.tile(jnp.eye(4, dtype=dtype), (K, D, 1, 1)),
+                         jnp.full((K, D), -np.log(max(D, 1)), dtype))
     return Tracks(jnp.zeros((K, 4), dtype), jnp.tile(jnp.eye(4, dtype=dtype), (K, 1, 1)),
                   jnp.full(K, -1, jnp.int32), zi, zi, zi, zi, zi, jnp.zeros(K, dtype),
-                  appearance.init(K, config.num_features, dtype), jnp.int32(0), jnp.int32(0))
+                  appearance.init(K, config.num_features, dtype), jnp.int32(0), jnp.int32(0),
+                  modes)
 
 
 def step(state: Tracks, detections: Detections, params: TrackerParams) -> Tracks:
@@ -357,6 +423,9 @@ class Hypotheses(NamedTuple):
       appearance: [K, M] colour confidence of each track's classifier (0 without features).
       confidence: [M] detector confidence.
       features: [M, F] appearance features, in the tracks' dtype.
+      modes: ``motion="imm"``: the mode-matched predictions (`predict_modes`), means
+        [K, 2, 4], covs [K, 2, 4, 4], log_mode_probs [K, 2] (the mixed :math:`\log c_j`), of
+        which ``predicted`` is the combined estimate; None for "cv".
     """
 
     predicted: Gaussian
@@ -370,6 +439,7 @@ class Hypotheses(NamedTuple):
     appearance: Array
     confidence: Array
     features: Array
+    modes: imm.IMMState | None = None
 
 
 class Association(NamedTuple):
@@ -383,12 +453,15 @@ class Association(NamedTuple):
         > 1/2, if any).
       used: [M] bools, detections taken by a track (JPDA: total marginal over live tracks
         >= 1/2); they start no track.
+      modes: ``motion="imm"``: the mode-matched posteriors and the updated log mode
+        probabilities, [K, 2, ...] (``posterior`` is their combined estimate); None for "cv".
     """
 
     posterior: Gaussian
     hit: Array
     col: Array
     used: Array
+    modes: imm.IMMState | None = None
 
 
 class Births(NamedTuple):
@@ -428,6 +501,11 @@ def predict(state: Tracks, params: TrackerParams) -> Gaussian:
     """
     _check_stage(params, state=state)
     cfg = params.config
+    live = state.status != FREE
+    if cfg.motion == "imm":
+        combined = jax.vmap(imm.estimate)(_predict_modes(state, params))
+        return Gaussian(jnp.where(live[:, None], combined.mean, state.mean),
+                        jnp.where(live[:, None, None], combined.cov, state.cov))
     F, Q = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
     F, Q = F.astype(state.mean.dtype), Q.astype(state.mean.dtype)
     if cfg.filter == "kf":
@@ -438,9 +516,77 @@ def predict(state: Tracks, params: TrackerParams) -> Gaussian:
             state.mean, state.cov)
         mean, cov = pred.mean, pred.cov
     cov = 0.5 * (cov + jnp.swapaxes(cov, -1, -2))
-    live = state.status != FREE
     return Gaussian(jnp.where(live[:, None], mean, state.mean),
                     jnp.where(live[:, None, None], cov, state.cov))
+
+
+def predict_modes(state: Tracks, params: TrackerParams) -> imm.IMMState:
+    r"""The IMM prediction of every live track (``config.motion = "imm"``): `jaxtrack.filters.imm`
+    ``mix`` with the transition :math:`p_{ij}` = softmax of ``mode_logits``, then each mode's
+    Kalman prediction.
+
+    .. math::
+        \text{walking: } F_w = \begin{bmatrix} I & \Delta t I \\ 0 & I \end{bmatrix},\;
+        Q_w = q \begin{bmatrix} \Delta t^3/3\, I & \Delta t^2/2\, I \\
+        \Delta t^2/2\, I & \Delta t\, I \end{bmatrix};\qquad
+        \text{standing: } F_s = \begin{bmatrix} I & 0 \\ 0 & 0 \end{bmatrix},\;
+        Q_s = q_s \begin{bmatrix} \Delta t\, I & 0 \\ 0 & I / \Delta t \end{bmatrix}
+
+    (walking: `jaxtrack.models.motion.constant_velocity`, :math:`q` = ``exp(log_q)``, the "cv"
+    model; standing: the velocity is zero up to the apparent velocity of a position random
+    walk of density :math:`q_s` = ``exp(log_q_standing)``). A track of age 0 (just born, or
+    placed by hand) first takes its modes from its ``mean`` / ``cov``, with mode probabilities
+    :math:`(1 - \pi_0, \pi_0)`, :math:`\pi_0` = ``sigmoid(logit_init_standing)``.
+
+    Args:
+      state: `Tracks` with K slots and ``config.motion = "imm"``.
+      params: `TrackerParams`.
+
+    Returns:
+      `jaxtrack.filters.imm.IMMState`, means [K, 2, 4], covs [K, 2, 4, 4], log_mode_probs
+      [K, 2] (the mixed log probabilities :math:`\log c_j`); free slots keep their values.
+      `predict` returns its combined estimate.
+
+    Example:
+      >>> modes = predict_modes(tracks, params)
+      >>> jnp.exp(modes.log_mode_probs[:, STANDING])   # predicted standing probabilities
+    """
+    _check_stage(params, state=state)
+    if params.config.motion != "imm":
+        raise ValueError('predict_modes needs config.motion = "imm"')
+    return _predict_modes(state, params)
+
+
+def _predict_modes(state, params):
+    dtype = state.mean.dtype
+    live = state.status != FREE
+    fresh = live & (state.age == 0)
+    logit0 = params.logit_init_standing.astype(dtype)
+    log_p0 = jnp.stack([jax.nn.log_sigmoid(-logit0), jax.nn.log_sigmoid(logit0)])
+    start = imm.IMMState(
+        jnp.where(fresh[:, None, None], state.mean[:, None], state.modes.means),
+        jnp.where(fresh[:, None, None, None], state.cov[:, None], state.modes.covs),
+        jnp.where(fresh[:, None], log_p0, state.modes.log_mode_probs))
+    transition = imm.transition_from_logits(params.mode_logits.astype(dtype))
+    pred = jax.vmap(lambda s: imm.predict(imm.mix(s, transition), _mode_models(params, dtype)))(
+        start)
+    return jax.tree_util.tree_map(
+        lambda p, s: jnp.where(live.reshape((-1,) + (1,) * (p.ndim - 1)), p, s), pred,
+        state.modes)
+
+
+def _mode_models(params, dtype):
+    """`imm.LinearModels` of the walking and standing modes (`predict_modes`)."""
+    # the walking mode built exactly as `predict` builds the "cv" model
+    F_w, Q_w = motion.constant_velocity(params.dt, jnp.exp(params.log_q))
+    dt = jnp.asarray(params.dt, dtype)
+    q_s = jnp.exp(params.log_q_standing).astype(dtype)
+    F_s = jnp.diag(jnp.array([1.0, 1.0, 0.0, 0.0], dtype))
+    Q_s = q_s * jnp.diag(jnp.stack([dt, dt, 1 / dt, 1 / dt]))
+    H = jnp.broadcast_to(_position(dtype), (2, 2, 4))
+    R = jnp.broadcast_to(jnp.eye(2, dtype=dtype), (2, 2, 2))
+    return imm.LinearModels(jnp.stack([F_w.astype(dtype), F_s]),
+                            jnp.stack([Q_w.astype(dtype), Q_s]), H, R)
 
 
 def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
@@ -455,6 +601,9 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
 
     (`jaxtrack.association.innovations` and `gate`, :math:`P_G` = ``gate_prob``), plus the
     colour confidence of the track's online classifier when ``config.num_features > 0``.
+    With ``config.motion = "imm"`` the gates are those of the combined prediction (the
+    IMM-JPDA / IMM-GNN approximation), and the hypotheses also carry the mode-matched
+    predictions (`predict_modes`), which the association updates.
 
     Args:
       state: `Tracks` with K slots, before the scan (its status says which slots are live).
@@ -485,8 +634,9 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
     features = detections.features.astype(dtype)
     conf_app = (appearance.confidence(state.appearance, features) if cfg.num_features
                 else jnp.zeros((K, M), dtype))
+    modes = _predict_modes(state, params) if cfg.motion == "imm" else None
     return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
-                      detections.confidence, features)
+                      detections.confidence, features, modes)
 
 
 def associate(hypotheses: Hypotheses, params: TrackerParams) -> Association:
@@ -540,6 +690,17 @@ def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association
     track is hit when :math:`\beta_{k\varnothing} < 1/2`; it took detection j when
     :math:`\beta_{kj} > 1/2`; a detection is used when :math:`\sum_k \beta_{kj} \ge 1/2`.
 
+    With ``config.motion = "imm"`` the marginals are those of the combined prediction and every
+    mode i gets the PDA update with the same row; the mode probabilities are updated by the
+    beta-weighted mixture likelihood of each mode,
+
+    .. math:: \mu_i^+ \propto c_i \Big(\beta_{k\varnothing}\lambda
+        + \sum_j \beta_{kj} N(z_j; H m_{k,i}, H P_{k,i} H^T + R_{s(j)})\Big)
+
+    (:math:`c_i` the mixed mode probabilities, :math:`m_{k,i}, P_{k,i}` mode i's prediction,
+    :math:`\lambda` the clutter density: no detection weighs as much as clutter, so without a
+    detection the modes keep :math:`c`), and the posterior is the combined estimate of the modes.
+
     Args:
       hypotheses: `Hypotheses` of the scan (K tracks, M detections).
       params: `TrackerParams`.
@@ -555,8 +716,12 @@ def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association
     h = hypotheses
     M = h.zs.shape[0]
     beta = _marginals(h, params)
-    posts = association.jpda_update(h.predicted, h.zs, beta, _position(h.zs.dtype), h.R,
-                                    sensor=h.sensor, meas_mask=h.mask, track_mask=h.live)
+    if h.modes is None:
+        posts = association.jpda_update(h.predicted, h.zs, beta, _position(h.zs.dtype), h.R,
+                                        sensor=h.sensor, meas_mask=h.mask, track_mask=h.live)
+        modes = None
+    else:
+        posts, modes = _imm_jpda_update(h, beta, params)
     hit = h.live & (beta[:, M] < 0.5)
     if M == 0:  # an empty scan: nothing to take
         col = jnp.full(hit.shape, -1, jnp.int32)
@@ -564,7 +729,7 @@ def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association
         best = jnp.argmax(beta[:, :M], -1)
         col = jnp.where(hit & (jnp.max(beta[:, :M], -1) > 0.5), best, -1)
     used = jnp.sum(jnp.where(h.live[:, None], beta[:, :M], 0.0), 0) >= 0.5
-    return Association(posts, hit, col, used)
+    return Association(posts, hit, col, used, modes)
 
 
 def associate_nn_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association:
@@ -617,7 +782,8 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
         deletes them.
 
     Returns:
-      The updated `Tracks` (``next_id`` and ``num_dropped`` unchanged; no births yet).
+      The updated `Tracks` (``next_id`` and ``num_dropped`` unchanged; no births yet; with
+      ``motion="imm"`` the modes of ``assoc``).
 
     Example:
       >>> tracks = manage(state, hyp, associate(hyp, params), params)
@@ -658,11 +824,18 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
         head = jnp.where(speed > params.walking_speed, jnp.arctan2(mean[:, 3], mean[:, 2]),
                          state.heading)
 
+    modes = state.modes
+    if cfg.motion == "imm":
+        if assoc.modes is None:
+            raise ValueError('with config.motion = "imm" the association must carry the '
+                             "mode posteriors (assoc.modes), as the associate_* stages give")
+        modes = assoc.modes
+
     free = status == FREE
     return Tracks(mean, cov, jnp.where(free, -1, state.id), jnp.where(free, 0, age),
                   jnp.where(free, 0, hits), jnp.where(free, 0, misses),
                   jnp.where(free, 0, history), status, head, app, state.next_id,
-                  state.num_dropped)
+                  state.num_dropped, modes)
 
 
 def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
@@ -678,7 +851,8 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
     ``num_dropped``), with id ``next_id + i``: ids are unique and increasing. A new track has
     mean :math:`[z, 0, 0]`, covariance :math:`\mathrm{diag}(R_s, \sigma_v^2 I)`
     (:math:`\sigma_v` = ``exp(log_init_speed_std)``), one hit, and status `TENTATIVE`
-    (`CONFIRMED` when ``confirm_hits`` is 1).
+    (`CONFIRMED` when ``confirm_hits`` is 1); with ``motion="imm"`` both modes start from that
+    Gaussian, with standing probability ``sigmoid(logit_init_standing)``.
 
     Args:
       tracks: `Tracks` after `manage`.
@@ -724,6 +898,12 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
     first = jnp.where(cfg.confirm_hits <= 1, CONFIRMED, TENTATIVE)
     num_born = jnp.sum(born).astype(jnp.int32)
     app = tracks.appearance
+    D = cfg.num_modes
+    logit0 = params.logit_init_standing.astype(dtype)
+    log_p0 = jnp.stack([jax.nn.log_sigmoid(-logit0), jax.nn.log_sigmoid(logit0)])[:D]
+    modes = imm.IMMState(put(tracks.modes.means, jnp.repeat(mean0[:, None], D, 1)),
+                         put(tracks.modes.covs, jnp.repeat(cov0[:, None], D, 1)),
+                         put(tracks.modes.log_mode_probs, jnp.broadcast_to(log_p0, (M, D))))
     new = Tracks(
         put(tracks.mean, mean0), put(tracks.cov, cov0),
         put(tracks.id, new_ids.astype(jnp.int32)), put(tracks.age, jnp.zeros(M, jnp.int32)),
@@ -734,7 +914,7 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
         appearance.Appearance(put(app.weights, jnp.zeros((M, cfg.num_features), dtype)),
                               put(app.bias, jnp.zeros(M, dtype))),
         tracks.next_id + num_born,
-        tracks.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32))
+        tracks.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32), modes)
     return Births(new, born, slot)
 
 
@@ -759,13 +939,66 @@ def _marginals(h, params):
 
 
 def _hard_update(h, col):
-    """`Association` of one detection per track (col [K], -1 none): a Kalman update each."""
+    r"""`Association` of one detection per track (col [K], -1 none): a Kalman update each (of
+    each mode with ``motion="imm"``, whose probabilities then follow each mode's likelihood of
+    the detection, :math:`\mu_i^+ \propto c_i N(z; H m_i, S_i)`; unchanged without one)."""
     M = h.zs.shape[0]
-    posts, _ = association.nn_update(h.predicted, h.zs, col, _position(h.zs.dtype), h.R,
-                                     sensor=h.sensor, track_mask=h.live)
+    H = _position(h.zs.dtype)
     hit = col >= 0
     used = jnp.zeros(M, bool).at[jnp.where(hit, col, M)].set(True, mode="drop")
-    return Association(posts, hit, col, used)
+    if h.modes is None:
+        posts, _ = association.nn_update(h.predicted, h.zs, col, H, h.R, sensor=h.sensor,
+                                         track_mask=h.live)
+        return Association(posts, hit, col, used)
+    updates = [association.nn_update(g, h.zs, col, H, h.R, sensor=h.sensor, track_mask=h.live)
+               for g in _mode_gaussians(h.modes)]
+    log_lik = jnp.stack([ll for _, ll in updates], -1)  # [K, D], 0 without a detection
+    posts, modes = _imm_posterior(h, [g for g, _ in updates], log_lik)
+    return Association(posts, hit, col, used, modes)
+
+
+def _mode_gaussians(modes):
+    """The D mode-matched Gaussians [K, 4] of an [K, D, ...] `imm.IMMState`."""
+    return [Gaussian(modes.means[:, i], modes.covs[:, i]) for i in range(modes.means.shape[1])]
+
+
+def _imm_jpda_update(h, beta, params):
+    """Every mode's PDA update with the marginals ``beta`` [K, M + 1], and the mode
+    probabilities by the beta-weighted mixture likelihood (`associate_jpda`)."""
+    dtype = h.zs.dtype
+    H = _position(dtype)
+    M = h.zs.shape[0]
+    log_clutter = params.log_clutter_density.astype(dtype)
+    posts, log_lik = [], []
+    for g in _mode_gaussians(h.modes):
+        posts.append(association.jpda_update(g, h.zs, beta, H, h.R, sensor=h.sensor,
+                                             meas_mask=h.mask, track_mask=h.live))
+        inn = association.innovations(g.mean, g.cov, h.zs, H, h.R, sensor=h.sensor,
+                                      track_mask=h.live, meas_mask=h.mask)
+        ok = inn.valid & (beta[:, :M] > 0)
+        terms = jnp.concatenate([jnp.where(ok, inn.log_likelihood, -jnp.inf),
+                                 jnp.broadcast_to(log_clutter, (beta.shape[0], 1))], -1)
+        # a slot that is not live weighs only the clutter term (finite, no NaN gradient)
+        miss = jnp.where(h.live, beta[:, M], 1.0)[:, None]
+        weights = jnp.concatenate([jnp.where(ok, beta[:, :M], 0.0), miss], -1)
+        log_lik.append(jax.nn.logsumexp(terms, axis=-1, b=weights))
+    return _imm_posterior(h, posts, jnp.stack(log_lik, -1))
+
+
+def _imm_posterior(h, posts, log_lik):
+    r"""Mode probabilities :math:`\mu_i^+ \propto c_i L_i` from log_lik [K, D], the mode
+    posteriors ``posts`` (D Gaussians [K, 4]) and their combined estimate; slots that are not
+    live keep their predictions."""
+    joint = h.modes.log_mode_probs + jnp.where(h.live[:, None], log_lik, 0.0)
+    log_mu = joint - jax.nn.logsumexp(joint, axis=-1, keepdims=True)
+    log_mu = jnp.where(h.live[:, None], log_mu, h.modes.log_mode_probs)
+    modes = imm.IMMState(jnp.stack([p.mean for p in posts], 1),
+                         jnp.stack([p.cov for p in posts], 1), log_mu)
+    combined = jax.vmap(imm.estimate)(modes)
+    live = h.live
+    posterior = Gaussian(jnp.where(live[:, None], combined.mean, h.predicted.mean),
+                         jnp.where(live[:, None, None], combined.cov, h.predicted.cov))
+    return posterior, modes
 
 
 _ASSOCIATORS = {"gnn": associate_gnn, "jpda": associate_jpda, "nn_jpda": associate_nn_jpda}
@@ -803,8 +1036,15 @@ def _check_stage(params, **args):
             raise TypeError(f"{name} must be a tracker.{types[name].__name__}; got "
                             f"{type(value).__name__}")
         if types[name] is Tracks:
-            _checks.check_shape(f"{name}.mean", value.mean, (params.config.capacity, 4),
-                                "the tracker capacity of params.config")
+            _check_tracks_shape(name, value, params.config)
+
+
+def _check_tracks_shape(name, tracks, cfg):
+    _checks.check_shape(f"{name}.mean", tracks.mean, (cfg.capacity, 4),
+                        "the tracker capacity of params.config")
+    _checks.check_shape(f"{name}.modes.means", tracks.modes.means,
+                        (cfg.capacity, cfg.num_modes, 4),
+                        f'the motion of params.config ("{cfg.motion}"; build with init(config))')
 
 
 def _check(state, det, params):
@@ -815,8 +1055,7 @@ def _check(state, det, params):
     if not isinstance(state, Tracks):
         raise TypeError("state must be tracking.Tracks (see init)")
     cfg = params.config
-    _checks.check_shape("state.mean", state.mean, (cfg.capacity, 4),
-                        "the tracker capacity of params.config")
+    _check_tracks_shape("state", state, cfg)
     _checks.check_shape("detections.positions", det.positions, (None, 2))
     M = jnp.shape(det.positions)[0]
     for name, x, shape in (("mask", det.mask, (M,)), ("sensor", det.sensor, (M,)),
