@@ -45,8 +45,10 @@ def check_square(name: str, x, n: int | None = None) -> int:
     return shape[0]
 
 
-def check_covariance(name: str, x, n: int | None = None, *, batch_axes: int = 0) -> None:
-    """Square; and if concrete: finite, symmetric and positive semi-definite."""
+def check_covariance(name: str, x, n: int | None = None, *, batch_axes: int = 0,
+                     definite: bool = False) -> None:
+    """Square; and if concrete: finite, symmetric and positive semi-definite (positive definite
+    with ``definite``, e.g. a measurement noise that every innovation covariance must invert)."""
     shape = shape_of(x)
     core = shape[batch_axes:]
     if len(core) != 2 or core[0] != core[1] or (n is not None and core[0] != n):
@@ -68,6 +70,8 @@ def check_covariance(name: str, x, n: int | None = None, *, batch_axes: int = 0)
     min_eig = float(np.min(np.linalg.eigvalsh(0.5 * (a + np.swapaxes(a, -1, -2)))))
     if min_eig < -1e3 * tol * scale:
         raise ValueError(f"{name} is not positive semi-definite (smallest eigenvalue {min_eig:.3g})")
+    if definite and not min_eig > 0:
+        raise ValueError(f"{name} must be positive definite (smallest eigenvalue {min_eig:.3g})")
 
 
 def check_finite(name: str, x) -> None:

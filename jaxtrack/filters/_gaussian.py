@@ -24,6 +24,33 @@ class Gaussian(NamedTuple):
     cov: Array
 
 
+def working_dtype(**arrays) -> jnp.dtype:
+    """The one floating dtype of a filter run (the dtype policy of the ``filter`` drivers).
+
+    The widest floating dtype among the given arrays (float32 with float64 gives float64);
+    integer and bool arrays take no part and are promoted to it, and without any floating input
+    it is JAX's default float. Half precision (float16, bfloat16) is refused with a
+    ``TypeError`` naming the argument: covariance arithmetic in 11 significant bits loses
+    definiteness within a few steps, and log-domain constants overflow.
+    """
+    floats = []
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        dt = jnp.result_type(a)
+        if dt in (jnp.float16, jnp.bfloat16):
+            raise TypeError(f"{name} has dtype {dt}: half precision is not supported; use "
+                            "float32 or float64")
+        if jnp.issubdtype(dt, jnp.floating):
+            floats.append(dt)
+    return jnp.result_type(*floats) if floats else jnp.result_type(float)
+
+
+def as_dtype(state: Gaussian, dtype) -> Gaussian:
+    """``state`` with mean and cov in ``dtype``."""
+    return Gaussian(jnp.asarray(state.mean, dtype), jnp.asarray(state.cov, dtype))
+
+
 def check_state(state, name: str = "state") -> int:
     """Check one Gaussian, mean [n] (finite if concrete) and cov [n, n]; return n."""
     if not isinstance(state, Gaussian):

@@ -108,7 +108,11 @@ def filter(init: Gaussian, zs: Array, f: Callable, Q: Array, h: Callable, R: Arr
     _checks.check_callable("f", f)
     _checks.check_callable("h", h)
     _checks.check_covariance("Q", Q, n, batch_axes=int("Q" in tv))
-    _checks.check_covariance("R", R, m, batch_axes=int("R" in tv))
+    _checks.check_covariance("R", R, m, batch_axes=int("R" in tv), definite=True)
+    dtype = _gaussian.working_dtype(**{"init.mean": init.mean, "init.cov": init.cov, "zs": zs,
+                                       "Q": Q, "R": R})
+    init, zs = _gaussian.as_dtype(init, dtype), jnp.asarray(zs, dtype)
+    Q, R = jnp.asarray(Q, dtype), jnp.asarray(R, dtype)
     if "Q" in tv:
         _checks.check_shape("Q", Q, (T, n, n))
     if "R" in tv:

@@ -16,6 +16,11 @@ driver, following filterpy's ``batch_filter`` convention: each step predicts, th
 Missing data is a mask, never a branch: ``mask`` may be a scalar (whole measurement present or
 not) or one flag per measurement component. Components that are not finite are treated as
 missing, so NaN padding in recorded data cannot poison a batch (and `filter` counts them).
+
+Dtypes: the ``filter`` drivers (here, in `ekf` and `ukf`) run in one floating dtype, the widest
+among their floating inputs; integer inputs are promoted to it and half precision is refused
+(`jaxtrack.filters._gaussian.working_dtype`). A float32 state with float64 matrices therefore
+runs in float64. The model matrices are checked for NaN / inf when concrete.
 """
 
 from __future__ import annotations
@@ -176,6 +181,15 @@ def filter(init: Gaussian, zs: Array, F: Array, Q: Array, H: Array, R: Array,
     tv = _checks.check_options("time_varying", time_varying, _TIME_VARYING)
     n = _gaussian.check_state(init, "init")
     T, m = _gaussian.check_sequence(zs, masks)
+    dtype = _gaussian.working_dtype(**{"init.mean": init.mean, "init.cov": init.cov, "zs": zs,
+                                       "F": F, "Q": Q, "H": H, "R": R, "B": B, "us": us})
+    for name, x in (("F", F), ("H", H), ("B", B), ("us", us)):
+        if x is not None:
+            _checks.check_finite(name, x)
+    init, zs = _gaussian.as_dtype(init, dtype), jnp.asarray(zs, dtype)
+    F, Q, H, R = (jnp.asarray(x, dtype) for x in (F, Q, H, R))
+    if B is not None and us is not None:
+        B, us = jnp.asarray(B, dtype), jnp.asarray(us, dtype)
     mats = {"F": F, "Q": Q, "H": H, "R": R}
     if (B is None) != (us is None):
         raise ValueError("B and us must be given together")
@@ -192,7 +206,8 @@ def filter(init: Gaussian, zs: Array, F: Array, Q: Array, H: Array, R: Array,
     for name, shape in expected.items():
         lead = (T,) if name in tv else ()
         if name in ("Q", "R"):
-            _checks.check_covariance(name, mats[name], shape[0], batch_axes=len(lead))
+            _checks.check_covariance(name, mats[name], shape[0], batch_axes=len(lead),
+                                     definite=name == "R")
             _checks.check_shape(name, mats[name], lead + shape)
         else:
             _checks.check_shape(name, mats[name], lead + shape)
@@ -234,6 +249,10 @@ def rts_smoother(result: FilterResult, F: Array, Q: Array, *, B: Array | None = 
     T, n = jnp.shape(result.means)
     for name, x in (("F", F), ("Q", Q)):
         _checks.check_shape(name, x, ((T,) if name in tv else ()) + (n, n))
+    _checks.check_covariance("Q", Q, n, batch_axes=int("Q" in tv))
+    for name, x in (("F", F), ("B", B), ("us", us)):
+        if x is not None:
+            _checks.check_finite(name, x)
     if (B is None) != (us is None):
         raise ValueError("B and us must be given together")
     if T == 0:  # a zero-length sequence smooths to itself
@@ -335,9 +354,14 @@ def run_filter(init, zs, masks, step, per_step, return_predicted=True) -> Filter
     full = jnp.broadcast_to(masks if masks.ndim == 2 else masks[:, None], (T, m))
     num_invalid = jnp.sum(full & ~jnp.isfinite(zs))
 
+    dtype = jnp.result_type(init.mean)
+
     def body(state, inp):
         z, mask, p = inp
         pred, post, ll = step(state, z, mask, p)
+        # User functions (EKF / UKF) may compute in a wider dtype: the carry keeps the run's.
+        pred, post = _gaussian.as_dtype(pred, dtype), _gaussian.as_dtype(post, dtype)
+        ll = jnp.asarray(ll, dtype)
         not_pd = ~jnp.all(jnp.isfinite(_linalg.cholesky(post.cov)))
         return post, (post, pred if return_predicted else None, ll, not_pd)
 

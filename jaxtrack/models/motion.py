@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxtrack import _checks
+
 Array = jax.Array
 
 __all__ = ["constant_velocity", "constant_acceleration", "coordinated_turn", "unicycle",
@@ -34,6 +36,19 @@ def _kron2(block):
 def _float(x):
     x = jnp.asarray(x)
     return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.result_type(float))
+
+
+def _check_positive(**values) -> None:
+    """Concrete values must be finite and > 0 (dt), or >= 0 (noise densities, ``q*`` names)."""
+    for name, v in values.items():
+        if not _checks.is_concrete(v):
+            continue
+        a = np.asarray(v, np.float64)
+        ok = np.all(np.isfinite(a)) and (np.all(a >= 0) if name.startswith("q") else
+                                         np.all(a > 0))
+        if not ok:
+            bound = ">= 0" if name.startswith("q") else "> 0"
+            raise ValueError(f"{name} must be finite and {bound}; got {v!r}")
 
 
 def constant_velocity(dt, q) -> tuple[Array, Array]:
@@ -53,6 +68,7 @@ def constant_velocity(dt, q) -> tuple[Array, Array]:
     Example:
       >>> F, Q = constant_velocity(0.1, 1.0)
     """
+    _check_positive(dt=dt, q=q)
     dt = _float(dt)
     F = _kron2(jnp.array([[1.0, dt], [0.0, 1.0]], dtype=dt.dtype))
     Q = q * _kron2(jnp.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]], dtype=dt.dtype))
@@ -75,6 +91,7 @@ def constant_acceleration(dt, q) -> tuple[Array, Array]:
     Example:
       >>> F, Q = constant_acceleration(0.1, 0.5)
     """
+    _check_positive(dt=dt, q=q)
     dt = _float(dt)
     F = _kron2(jnp.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]], dtype=dt.dtype))
     Q = q * _kron2(jnp.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6],

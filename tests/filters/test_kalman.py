@@ -480,3 +480,61 @@ def test_zero_length_sequence_filters_and_smooths_to_empty_results():
     assert res.means.shape == (0, 4) and float(res.log_likelihood) == 0.0
     sm = kalman.rts_smoother(res, F, Q)
     assert sm.means.shape == (0, 4) and sm.covs.shape == (0, 4, 4)
+
+
+# ---------------------------------------------------------------------------------------------
+# Dtype policy and value checks at the boundary of the drivers
+
+_DTYPE_PROBLEM = dict(F=np.eye(4) + np.eye(4, k=2) * 0.1, Q=0.01 * np.eye(4), H=np.eye(2, 4),
+                      R=0.1 * np.eye(2), zs=np.arange(10.0).reshape(5, 2) / 10)
+
+
+@pytest.mark.parametrize("driver", ["kf", "ekf", "ukf"])
+@pytest.mark.parametrize("state_dtype, matrix_dtype, expected", [
+    (np.int64, np.float64, np.float64), (np.float32, np.float64, np.float64),
+    (np.float32, np.float32, np.float32), (np.int32, np.float32, np.float32)])
+def test_inputs_are_promoted_to_one_floating_dtype(driver, state_dtype, matrix_dtype, expected):
+    from jaxtrack.filters import ekf, ukf
+
+    p = {k: v.astype(matrix_dtype) for k, v in _DTYPE_PROBLEM.items()}
+    init = Gaussian(np.zeros(4, state_dtype), np.eye(4, dtype=state_dtype))
+    F, H = p["F"], p["H"]
+    if driver == "kf":
+        res = kalman.filter(init, p["zs"], F, p["Q"], H, p["R"])
+    else:
+        mod = ekf if driver == "ekf" else ukf
+        res = mod.filter(init, p["zs"], lambda x: F @ x, p["Q"], lambda x: H @ x, p["R"])
+    assert res.means.dtype == expected and res.covs.dtype == expected
+    ref = kalman.filter(Gaussian(np.zeros(4), np.eye(4)),
+                        *(_DTYPE_PROBLEM[k] for k in ("zs", "F", "Q", "H", "R")))
+    tol = 1e-5 if expected == np.float32 else 1e-9
+    np.testing.assert_allclose(res.means, ref.means, atol=tol)
+    assert int(res.num_not_pd) == 0
+
+
+@pytest.mark.parametrize("dtype", [np.float16, "bfloat16"])
+def test_half_precision_is_refused_naming_the_argument(dtype):
+    init = Gaussian(jnp.zeros(4, dtype), jnp.eye(4, dtype=dtype))
+    p = _DTYPE_PROBLEM
+    with pytest.raises(TypeError, match="init.mean has dtype .*half precision"):
+        kalman.filter(init, p["zs"], p["F"], p["Q"], p["H"], p["R"])
+
+
+@pytest.mark.parametrize("name", ["F", "H", "B", "us"])
+def test_nan_in_a_model_array_is_refused(name):
+    p = dict(_DTYPE_PROBLEM, B=np.ones((4, 1)), us=np.ones((5, 1)))
+    p[name] = p[name].copy()
+    p[name].flat[0] = np.nan
+    with pytest.raises(ValueError, match=f"{name} contains NaN"):
+        kalman.filter(Gaussian(np.zeros(4), np.eye(4)), p["zs"], p["F"], p["Q"], p["H"], p["R"],
+                      B=p["B"], us=p["us"])
+
+
+def test_singular_measurement_noise_and_negative_smoother_noise_are_refused():
+    p = _DTYPE_PROBLEM
+    with pytest.raises(ValueError, match="R must be positive definite"):
+        kalman.filter(Gaussian(np.zeros(4), np.zeros((4, 4))), p["zs"], p["F"],
+                      np.zeros((4, 4)), p["H"], np.zeros((2, 2)))
+    res = kalman.filter(Gaussian(np.zeros(4), np.eye(4)), p["zs"], p["F"], p["Q"], p["H"], p["R"])
+    with pytest.raises(ValueError, match="Q is not positive semi-definite"):
+        kalman.rts_smoother(res, p["F"], -p["Q"])

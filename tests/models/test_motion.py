@@ -170,3 +170,14 @@ def test_person_walking_straight_while_robot_turns_is_tracked_in_robot_frame():
     # and the odometry-driven rotation input of eq. 11 must help when the robot turns.
     assert rmse["with_turn_input"] < 0.06
     assert rmse["with_turn_input"] < 0.8 * rmse["without"]
+
+
+@pytest.mark.parametrize("model", [motion.constant_velocity, motion.constant_acceleration])
+@pytest.mark.parametrize("dt, q, message", [(0.1, -0.5, "q must be"), (0.0, 1.0, "dt must be"),
+                                            (0.1, float("nan"), "q must be"),
+                                            (float("inf"), 1.0, "dt must be")])
+def test_negative_noise_and_bad_time_steps_are_refused(model, dt, q, message):
+    with pytest.raises(ValueError, match=message):
+        model(dt, q)
+    F, Q = model(0.1, 0.0)  # zero noise is a valid (deterministic) model
+    assert np.all(np.linalg.eigvalsh(np.asarray(Q)) >= -1e-15)
