@@ -14,7 +14,9 @@ the PF's variants are judged by.
 
 Estimator names: those of `jaxtrack.tracking.user.CONFIGS`, plus ``pf_hm`` (the PF's crowd
 fix of the clustering threshold), ``pf_laser`` / ``pf_rgbd`` (the PF on one sensor),
-``jpda_app`` / ``nn_jpda_app`` (with the RGB-D colour).
+``jpda_app`` / ``nn_jpda_app`` (with the RGB-D colour), ``jpda_imm`` / ``nn_jpda_app_imm``
+(their tracker with the walking / standing IMM, ``TrackerConfig(motion="imm")``). The table also
+gives IDF1 and HOTA, and the pairs the differences of user switches, MOTA, IDF1 and HOTA.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ import _common
 PACKAGES = ["jaxtrack", "jax", "jaxlib", "mujoco", "mujoco-mjx"]
 
 PAIRS = [("pf", "pf_laser"), ("pf", "pf_rgbd"), ("pf_hm", "pf"), ("jpda_app", "jpda"),
-         ("nn_jpda_app", "jpda_app"), ("pf", "jpda_app")]
+         ("nn_jpda_app", "jpda_app"), ("pf", "jpda_app"), ("jpda_imm", "jpda"),
+         ("nn_jpda_app_imm", "nn_jpda_app")]
 
 
 def configs():
@@ -37,6 +40,7 @@ def configs():
 
     pf = user.ParticleConfig()
     jpda_app = user.MultiTargetConfig(appearance=True)
+    nn_jpda = dataclasses.replace(user.TRACKER, association="nn_jpda")
     return {
         **user.CONFIGS,
         "pf_hm": dataclasses.replace(pf, pf=dataclasses.replace(
@@ -44,8 +48,11 @@ def configs():
         "pf_laser": user.with_sensors(pf, "laser"),
         "pf_rgbd": user.with_sensors(pf, "rgbd"),
         "jpda_app": jpda_app,
-        "nn_jpda_app": dataclasses.replace(jpda_app, tracker=dataclasses.replace(
-            user.TRACKER, association="nn_jpda")),
+        "nn_jpda_app": dataclasses.replace(jpda_app, tracker=nn_jpda),
+        "jpda_imm": user.MultiTargetConfig(
+            tracker=dataclasses.replace(user.TRACKER, motion="imm")),
+        "nn_jpda_app_imm": dataclasses.replace(
+            jpda_app, tracker=dataclasses.replace(nn_jpda, motion="imm")),
     }
 
 
@@ -85,19 +92,28 @@ def run(args):
         rms, pooled = rms_pooled(m)
         ratios = ["-", "-"] if floor is None else [f"{rms / floor[0]:.2f}x",
                                                    f"{pooled / floor[1]:.2f}x"]
-        mota = m["mota"][np.isfinite(m["mota"])]
+        ident = []
+        for key in ("mota", "idf1", "hota"):
+            x = m[key][np.isfinite(m[key])]
+            ident.append(f"{x.mean():.1%}" if x.size else "-")
         rows.append([name, f"{rms:.3f}", f"{pooled:.3f}", *ratios,
                      f"{m['lost_fraction'].mean():.1%}", f"{m['user_switches'].mean():.2f}",
-                     f"{mota.mean():.1%}" if mota.size else "-", f"{walls[name]:.1f}"])
+                     *ident, f"{walls[name]:.1f}"])
     print(_common.format_table(["estimator", "RMS [m]", "pooled [m]", "RMS / floor",
-                                "pooled / floor", "lost", "user switches", "MOTA", "run [s]"],
-                               rows))
-    print("\nPaired differences (first minus second, mean [95 % CI]):")
+                                "pooled / floor", "lost", "user switches", "MOTA", "IDF1",
+                                "HOTA", "run [s]"], rows))
+    print("\nPaired differences (first minus second, mean [95 % CI]; MOTA, IDF1 and HOTA over "
+          "the episodes where both are defined):")
     for a, b in PAIRS:
         if a in metrics and b in metrics:
             parts = []
-            for key, scale, unit in (("following_rms", 1.0, " m"), ("lost_fraction", 100.0, " %")):
+            for key, scale, unit in (("following_rms", 1.0, " m"), ("lost_fraction", 100.0, " %"),
+                                     ("user_switches", 1.0, ""), ("mota", 100.0, " %"),
+                                     ("idf1", 100.0, " %"), ("hota", 100.0, " %")):
                 d = scale * (metrics[a][key] - metrics[b][key])
+                d = d[np.isfinite(d)]
+                if d.size < 2:
+                    continue
                 h = 1.96 * d.std(ddof=1) / np.sqrt(d.size)
                 parts.append(f"{key} {d.mean():+.3f}{unit} [{d.mean() - h:+.3f}, "
                              f"{d.mean() + h:+.3f}]")
