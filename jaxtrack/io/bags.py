@@ -108,7 +108,7 @@ class BagReport(NamedTuple):
 
     Attributes:
       path: the bag; topic; msgtype: its message type (``pkg/msg/Name``).
-      messages: messages read.
+      messages: messages read and kept (the rows of the record before any resampling).
       unreadable: messages that could not be read: counted against the bag's own message count
         when it has one (ROS 2 metadata, ROS 1 index), else the messages cut or undecodable;
         -1 if unknown.
@@ -286,7 +286,8 @@ def read_laser(path, topic: str, *, max_beams: int | None = None, rate: float | 
                      np.ones(T, bool), report)
     if rate is None:
         return out
-    grid, valid, (ranges, mask) = resample(times, ranges, mask, rate=rate, method=method)
+    grid, valid, (ranges, mask) = _resample(report, times, ranges, mask, rate=rate,
+                                            method=method)
     ranges[~valid] = np.float32(rmax)
     return out._replace(times=grid, ranges=ranges, mask=mask, valid=valid)
 
@@ -322,7 +323,7 @@ def read_depth(path, topic: str, *, rate: float | None = None, method: str = "bu
     out = DepthImages(times, depth, mask, np.ones(len(msgs), bool), report)
     if rate is None:
         return out
-    grid, valid, (depth, mask) = resample(times, depth, mask, rate=rate, method=method)
+    grid, valid, (depth, mask) = _resample(report, times, depth, mask, rate=rate, method=method)
     return out._replace(times=grid, depth=depth, mask=mask, valid=valid)
 
 
@@ -367,7 +368,7 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
     out = Odometry(times, pose, twist, np.ones(len(times), bool), report)
     if rate is None:
         return out
-    grid, valid, (pose, twist) = resample(times, pose, twist, rate=rate, method=method)
+    grid, valid, (pose, twist) = _resample(report, times, pose, twist, rate=rate, method=method)
     return out._replace(times=grid, pose=pose, twist=twist, valid=valid)
 
 
@@ -395,7 +396,7 @@ def read_joint_states(path, topic: str, names=None, *, rate: float | None = None
     out = JointStates(times, names, pos, np.ones(len(msgs), bool), report)
     if rate is None:
         return out
-    grid, valid, (pos,) = resample(times, pos, rate=rate, method=method)
+    grid, valid, (pos,) = _resample(report, times, pos, rate=rate, method=method)
     return out._replace(times=grid, position=pos, valid=valid)
 
 
@@ -442,7 +443,7 @@ def read_detections(path, topic: str, max_detections: int, *, rate: float | None
     out = PersonDetections(times, xy, mask, np.ones(len(msgs), bool), report)
     if rate is None:
         return out
-    grid, valid, (xy, mask) = resample(times, xy, mask, rate=rate, method=method)
+    grid, valid, (xy, mask) = _resample(report, times, xy, mask, rate=rate, method=method)
     return out._replace(times=grid, xy=xy, mask=mask, valid=valid)
 
 
@@ -551,6 +552,21 @@ def resample(times, *arrays, rate: float, method: str = "bucket", start: float |
         r[valid] = a[src[valid]]
         out.append(r)
     return grid, valid, tuple(out)
+
+
+def _resample(report: BagReport, times, *arrays, rate, method):
+    """`resample` for a reader: a clock too long for the bag's own times (damaged stamps that
+    `OUTLIER_GAP` does not catch: several messages moved together) is a `BagError` naming the
+    bag."""
+    if rate is not None and np.isfinite(rate) and rate > 0 and len(times):
+        span = float(times[-1] - times[0])
+        if not span * rate < MAX_RESAMPLE_SLOTS:
+            raise BagError(f"{report.path} {report.topic}: the messages' times span {span:.6g} s "
+                           f"({times[0]:.3f} to {times[-1]:.3f} s); at rate={float(rate):g} Hz "
+                           f"that is more than MAX_RESAMPLE_SLOTS = {MAX_RESAMPLE_SLOTS:.0e} "
+                           f"slots: a rate too high, or damaged stamps (read without rate= "
+                           f"to see them)")
+    return resample(times, *arrays, rate=rate, method=method)
 
 
 def register_people_msgs(typestore):
@@ -985,6 +1001,18 @@ def _read_topic(path, topic, accepted, time_source, typestore):
         reader.close()
     if bad:
         notes.append(f"{bad} messages could not be decoded")
+    if notes and notes[0].startswith("reading stopped"):
+        # The index is whole but the storage behind it is not: reading record by record
+        # may recover the messages past the damage.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BagWarning)
+            try:
+                salvaged = _read_salvaged(path, topic, accepted, time_source, ts, notes[0])
+            except BagError:
+                salvaged = None
+        if salvaged is not None and len(salvaged[0]) > len(out):
+            _warn(salvaged[1])
+            return salvaged
     return _finish(path, name, msgtype, out, max(expected - len(out), bad), None, notes, ())
 
 
@@ -1109,7 +1137,7 @@ def _read_salvaged(path, topic, accepted, time_source, ts, reason):
     msgtype = available[name]
     _check_type(name, msgtype, accepted, path)
     ids = {cid for cid, c in s.connections.items() if c.topic == name and c.msgtype == msgtype}
-    decode, note = _salvage_decoder(s, ts, ids, msgtype)
+    decode, note = _salvage_decoder(s, ts, ids, msgtype, path)
     decode_errors = _decode_errors()
     out, bad = [], 0
     for cid, t, raw in s.messages:
@@ -1145,7 +1173,7 @@ class _Salvage(NamedTuple):
     damaged: tuple | list = ()  # byte offsets of damaged records
 
 
-def _salvage_decoder(s: _Salvage, ts, ids, msgtype):
+def _salvage_decoder(s: _Salvage, ts, ids, msgtype, path):
     """`_decoder` over the definitions the bag gives for the connections ``ids``; a definition
     that does not parse is replaced by the type store's."""
     from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg
@@ -1167,7 +1195,7 @@ def _salvage_decoder(s: _Salvage, ts, ids, msgtype):
         store, broken = get_typestore(Stores.EMPTY), True
     if msgtype not in store.fielddefs:
         if msgtype not in ts.fielddefs:
-            raise BagError(f"the bag's definition of {msgtype} is "
+            raise BagError(f"{path}: the bag's definition of {msgtype} is "
                            + ("damaged" if broken else "missing")
                            + " and the type store does not hold it (pass typestore=)")
         store = ts

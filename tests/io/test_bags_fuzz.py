@@ -103,6 +103,8 @@ def read_all(path: Path, topics) -> tuple[str, str]:
                     try:
                         rec = read(path, topic, rate=rate)
                     except bags.BagError as err:
+                        if path.name not in str(err):
+                            return "error", f"{topic}: BagError not naming the file: {err}"
                         outcomes.append(("bagerror", str(err)))
                         continue
                     except _Timeout:
@@ -125,7 +127,7 @@ def fuzz(source, work: Path, examples: int, seed: int) -> dict:
     path, target, topics = source
     original = target.read_bytes()
     rng = np.random.default_rng(seed)
-    counts, failures = {"read": 0, "bagerror": 0, "error": 0}, []
+    counts, failures, errors = {"read": 0, "bagerror": 0, "error": 0}, [], {}
     for i in range(examples):
         data, how = mutate(original, rng)
         case = work / f"case{i}"
@@ -140,8 +142,11 @@ def fuzz(source, work: Path, examples: int, seed: int) -> dict:
         counts[kind] += 1
         if kind == "error":
             failures.append(f"{how}: {what}")
+        elif kind == "bagerror":   # by kind of message, the file's name left out
+            key = what.replace(str(case), "BAG").split(";")[0][:90]
+            errors[key] = errors.get(key, 0) + 1
         shutil.rmtree(case if case.is_dir() else case.parent)
-    return {"counts": counts, "failures": failures}
+    return {"counts": counts, "failures": failures, "errors": errors}
 
 
 @pytest.fixture(scope="module")
@@ -179,3 +184,5 @@ if __name__ == "__main__":  # a long run: python -m tests.io.test_bags_fuzz [exa
                   flush=True)
             for f in r["failures"]:
                 print("   ", f)
+            for e, c in sorted(r["errors"].items(), key=lambda x: -x[1]):
+                print(f"    BagError x{c}: {e}")
