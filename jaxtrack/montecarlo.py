@@ -1,16 +1,26 @@
 r"""Batched Monte-Carlo evaluation of an episode function over keys and devices.
 
 ``episode_fn(key, params) -> pytree of per-episode metrics`` is written for *one* episode;
-`evaluate` runs it for ``num_episodes`` keys derived from one key, in batches of one fixed size
-(one compile), each batch sharded over the episode axis across every device JAX sees
-(`jax.sharding.Mesh` + `NamedSharding`). With several processes (`jax.distributed.initialize`)
-the same code shards across hosts: every process builds the same global batch of keys and
-contributes its addressable shards.
+`evaluate` runs it for ``num_episodes`` keys derived from one key. Every compiled call runs one
+*block* of episodes per device (``block``, default `DEFAULT_BLOCK`; fewer when there are fewer
+episodes), sharded over the episode axis across every device JAX sees (`jax.sharding.Mesh` +
+`NamedSharding`); a batch is one or more such calls, and the last call is padded. With several
+processes (`jax.distributed.initialize`) the same code shards across hosts: every process
+builds the same global batch of keys and contributes its addressable shards.
 
-Episode ``i`` always uses ``jax.random.split(key, num_episodes)[i]``, so results for a given key
-do not depend on the batch size or the number of devices. Each finished batch is written to
-``out`` (an ``.npz`` file, replaced atomically), so an interrupted run resumes where it stopped
-and loses nothing already computed.
+**Reproducibility.** Episode ``i`` always uses ``jax.random.split(key, num_episodes)[i]`` and
+is always computed by the same compiled per-device program (a vmap over ``block`` episodes) at
+the same lane, ``i mod block``. A closed loop amplifies float rounding, and XLA rounds a vmap
+of 16 episodes differently from one of 32 (a humanoid episode's estimates differed in every
+episode between batch sizes 16 and 32 before this rule), so the results of a key are
+bit-identical for any ``batch_size`` and any number of devices, for a given ``block``. Changing
+``block`` changes the rounding, not the statistics. Each finished batch is written to ``out``
+(an ``.npz`` file, replaced atomically), so an interrupted run resumes where it stopped and
+loses nothing already computed.
+
+On a cluster, start one process per host with the same script and call
+``jax.distributed.initialize(coordinator_address="host0:1234", num_processes=P,
+process_id=p)`` before `evaluate`; every process gets the same metrics.
 
 The summary gives, for every scalar metric, the mean, standard deviation, median, 5 / 95 %
 quantiles and the 95 % confidence interval of the mean (normal approximation,
@@ -36,7 +46,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from tqdm import tqdm
 
 __all__ = ["Summary", "MonteCarloResult", "evaluate", "warm_up", "summarize", "format_summary",
-           "progress_bar"]
+           "progress_bar", "DEFAULT_BLOCK"]
+
+#: Episodes per device in one compiled call (see the module doc, "Reproducibility").
+DEFAULT_BLOCK = 32
 
 
 class Summary(NamedTuple):
@@ -75,7 +88,7 @@ class MonteCarloResult(NamedTuple):
 def evaluate(episode_fn: Callable, params, key, num_episodes: int,
              batch_size: int | None = None, out: str | os.PathLike | None = None,
              progress: bool = True, devices=None,
-             on_batch: Callable | None = None) -> MonteCarloResult:
+             on_batch: Callable | None = None, block: int | None = None) -> MonteCarloResult:
     """Run ``episode_fn`` over ``num_episodes`` keys in sharded batches and summarise.
 
     Args:
@@ -85,14 +98,16 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
         recompile).
       key: PRNG key; episode ``i`` uses ``jax.random.split(key, num_episodes)[i]``.
       num_episodes: number of episodes.
-      batch_size: episodes per compiled call (default: all, capped at 1024); rounded up to a
-        multiple of the device count. The last batch is padded, so there is one compile.
+      batch_size: episodes per saved batch (default: all, capped at 1024), rounded up to a
+        multiple of ``block`` times the device count. It does not change the results.
       out: optional ``.npz`` path; finished batches are saved there after every batch and a
         later call with the same key and ``num_episodes`` resumes from it.
       progress: show a progress bar (batches, episodes/s; `progress_bar`) on stderr and print
         the summary table there at the end.
       devices: devices to shard over (default: all of ``jax.devices()``).
       on_batch: optional ``on_batch(done, num_episodes)`` called after each saved batch.
+      block: episodes per device in one compiled call (default `DEFAULT_BLOCK`, at most
+        ``num_episodes``): the unit of reproducibility (module doc).
 
     Returns:
       `MonteCarloResult`; the summary table is also printed when ``progress`` is True.
@@ -111,9 +126,10 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
     n_dev = len(devices)
     if batch_size is None:
         batch_size = min(num_episodes, 1024)
-    if batch_size < 1:
-        raise ValueError(f"batch_size must be positive; got {batch_size}")
-    batch_size = int(math.ceil(batch_size / n_dev) * n_dev)
+    if isinstance(batch_size, bool) or int(batch_size) != batch_size or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer; got {batch_size}")
+    call = _block(block, num_episodes) * n_dev
+    batch_size = int(math.ceil(batch_size / call) * call)
 
     keys = jax.random.split(key, num_episodes)
     key_data = np.asarray(jax.random.key_data(keys)) if _is_typed_key(keys) else np.asarray(keys)
@@ -132,16 +148,25 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
     if chunks:
         treedef = jax.tree_util.tree_structure(
             jax.eval_shape(lambda k: episode_fn(k, params), keys[0]))
+    synced = jax.process_count() == 1
     start = time.perf_counter()
     computed = 0
     num_batches = math.ceil(num_episodes / batch_size)
     bar = progress_bar(num_episodes, initial=done, disable=not progress)
     while done < num_episodes:
         count = min(batch_size, num_episodes - done)
-        idx = np.arange(done, done + batch_size) % num_episodes  # pad by wrapping: one shape
-        batch_keys = _shard(keys, idx, sharding)
-        outputs = run(batch_keys, params)
-        outputs = jax.tree_util.tree_map(lambda x: _gather(x)[:count], outputs)
+        parts = []
+        for start_call in range(done, done + count, call):
+            # One block per device; the last call is padded by wrapping (one shape).
+            idx = np.arange(start_call, start_call + call) % num_episodes
+            outputs = run(_shard(keys, idx, sharding), params)
+            if not synced:
+                # The first gather sets up the CPU collectives with a 30 s deadline, shorter
+                # than a scene's compile time can differ between processes: meet first.
+                _barrier(f"jaxtrack.montecarlo.{fingerprint}.{start_call}")
+                synced = True
+            parts.append(jax.tree_util.tree_map(_gather, outputs))
+        outputs = jax.tree_util.tree_map(lambda *x: np.concatenate(x, 0)[:count], *parts)
         leaves, treedef = jax.tree_util.tree_flatten(outputs)
         chunks.append(leaves)
         done += count
@@ -164,16 +189,19 @@ def evaluate(episode_fn: Callable, params, key, num_episodes: int,
     return MonteCarloResult(metrics, summary, seconds, rate, n_dev)
 
 
-def warm_up(episode_fn: Callable, params, key, batch_size: int, devices=None) -> float:
-    """Compile ``episode_fn`` for batches of ``batch_size`` without running an episode.
+def warm_up(episode_fn: Callable, params, key, num_episodes: int, devices=None,
+            block: int | None = None) -> float:
+    """Compile ``episode_fn`` for `evaluate`'s calls without running an episode.
 
     A later `evaluate` with the same ``episode_fn`` (the same object), a key of the same type,
-    parameters of the same structure and dtypes, the same ``batch_size`` and devices then starts
-    without compiling, so that compilation and simulation can be timed apart.
+    parameters of the same structure and dtypes, the same devices and block, and
+    ``num_episodes`` episodes (or any number at least ``block``) then starts without compiling,
+    so that compilation and simulation can be timed apart.
 
     Args:
-      episode_fn, params, key, batch_size, devices: as for `evaluate` (``batch_size`` is
-        rounded up to a multiple of the device count in the same way).
+      episode_fn, params, key, devices, block: as for `evaluate`.
+      num_episodes: the episodes of the evaluation that follows (only
+        ``min(block, num_episodes)`` matters).
 
     Returns:
       the seconds spent tracing and compiling.
@@ -183,14 +211,32 @@ def warm_up(episode_fn: Callable, params, key, batch_size: int, devices=None) ->
       >>> res = evaluate(episode, {"scale": 1.0}, jax.random.PRNGKey(1), 256, batch_size=64)
     """
     devices = tuple(jax.devices() if devices is None else devices)
-    if batch_size < 1:
-        raise ValueError(f"batch_size must be positive; got {batch_size}")
-    batch_size = int(math.ceil(batch_size / len(devices)) * len(devices))
+    if isinstance(num_episodes, bool) or int(num_episodes) != num_episodes or num_episodes < 1:
+        raise ValueError(f"num_episodes must be a positive integer; got {num_episodes}")
+    call = _block(block, num_episodes) * len(devices)
     t0 = time.perf_counter()
     run, sharding = _compiled(episode_fn, devices)
-    keys = jax.random.split(key, batch_size)
-    run.lower(_shard(keys, np.arange(batch_size), sharding), params).compile()
+    keys = jax.random.split(key, call)
+    run.lower(_shard(keys, np.arange(call), sharding), params).compile()
     return time.perf_counter() - t0
+
+
+def _barrier(name: str, timeout_s: float = 3600.0) -> None:
+    """Wait until every process reaches ``name`` (the distributed runtime's barrier; JAX has no
+    public one that avoids device collectives)."""
+    from jax._src import distributed
+
+    client = distributed.global_state.client
+    if client is not None:
+        client.wait_at_barrier(name, int(timeout_s * 1000))
+
+
+def _block(block, num_episodes) -> int:
+    if block is None:
+        block = DEFAULT_BLOCK
+    if isinstance(block, bool) or int(block) != block or block < 1:
+        raise ValueError(f"block must be a positive integer; got {block}")
+    return int(min(block, num_episodes))
 
 
 def progress_bar(total: int, unit: str = "episodes", file=None, **kwargs) -> tqdm:

@@ -63,17 +63,18 @@ def test_interrupted_run_resumes_and_equals_uninterrupted(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, out=out, progress=False,
-                            on_batch=stop_after_two)
+                            on_batch=stop_after_two, block=5)
     assert out.exists() and calls == [5, 10]
     resumed_calls = []
     res = montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, out=out, progress=False,
-                              on_batch=lambda d, t: resumed_calls.append(d))
+                              on_batch=lambda d, t: resumed_calls.append(d), block=5)
     assert resumed_calls == [15, 20, 23]  # nothing recomputed
-    full = montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, progress=False)
+    full = montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, progress=False, block=5)
     for k in ("final", "rmse", "trajectory"):
         np.testing.assert_array_equal(res.metrics[k], full.metrics[k])
     # A finished file is reused as is; another key is refused.
-    again = montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, out=out, progress=False)
+    again = montecarlo.evaluate(episode, PARAMS, key, 23, batch_size=5, out=out, progress=False,
+                                block=5)
     np.testing.assert_array_equal(again.metrics["final"], full.metrics["final"])
     with pytest.raises(ValueError, match="different run"):
         montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(12), 23, out=out,
@@ -104,7 +105,7 @@ def test_same_results_on_one_and_four_devices():
 
 
 def test_progress_and_summary_are_printed(capsys):
-    montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(0), 12, batch_size=6)
+    montecarlo.evaluate(episode, PARAMS, jax.random.PRNGKey(0), 12, batch_size=6, block=6)
     err = capsys.readouterr().err
     # The bar's last state (tqdm) counts all episodes and batches, with a rate.
     last = err.split("Monte-Carlo summary")[0].replace("\r", "\n").strip().splitlines()[-1]
@@ -125,7 +126,7 @@ def test_warm_up_compiles_once_for_the_evaluation_that_follows():
         traces.append(1)  # runs at trace time only
         return episode(key, params)
 
-    seconds = montecarlo.warm_up(counted, PARAMS, jax.random.PRNGKey(0), 6)
+    seconds = montecarlo.warm_up(counted, PARAMS, jax.random.PRNGKey(0), 12)
     assert seconds > 0 and len(traces) == 1
     res = montecarlo.evaluate(counted, PARAMS, jax.random.PRNGKey(5), 12, batch_size=6,
                               progress=False)

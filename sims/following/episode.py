@@ -357,13 +357,22 @@ def _behaviour_inputs(e: user.UserEstimate, sensed: sensing.Sensed, map_pose
         e.user_found, sensed.returns_xy, sensed.returns_mask, map_pose, look, e.look_ok)
 
 
+def _sequential_mean(x: Array) -> Array:
+    """Mean over the frames, summed in frame order by a scan. XLA orders a vectorised sum by
+    the program's layout, which differs between one device and a sharded batch (a float32 RMS
+    then differs in the 7th digit); a sequential sum is the same everywhere, so the metric is
+    bit-identical for any batch size and device count (`jaxtrack.montecarlo`)."""
+    total, _ = jax.lax.scan(lambda c, v: (c + v, None), jnp.zeros((), x.dtype), x)
+    return total / x.shape[0]
+
+
 def summarize(config: EpisodeConfig, frames: Frame) -> dict:
     """Episode metrics (module docstring) from a rollout's `Frame` record."""
     f = frames
     dtype = f.follow_error.dtype
     P = config.scene.num_people
     out = {
-        "following_rms": jnp.sqrt(jnp.mean(f.follow_error**2)),
+        "following_rms": jnp.sqrt(_sequential_mean(f.follow_error**2)),
         "lost_fraction": jnp.mean(f.lost.astype(dtype)),
         "user_switches": jnp.sum(f.user_switched).astype(jnp.int32),
         "near_fraction": jnp.mean(f.near.astype(dtype)),

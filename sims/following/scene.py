@@ -296,7 +296,9 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
     xml = mjcf(int(num_people), (W, H), furniture, dt, contacts, gait, robot_size, robot_radius,
                layout=lay)
     model = mujoco.MjModel.from_xml_string(xml)
-    mx = mjx.put_model(model)
+    # On this process's own device: MJX defaults to jax.devices()[0], which in a multi-process
+    # run belongs to process 0 only (and a closure over it cannot be compiled elsewhere).
+    mx = mjx.put_model(model, device=jax.local_devices()[0])
     torso = np.array([model.body_mocapid[model.body(f"person{p}_torso").id]
                       for p in range(num_people)])
     legs = np.array([[model.body_mocapid[model.body(f"person{p}_{s}_leg").id] for s in "lr"]
@@ -308,7 +310,7 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
     assert (physics.nq, physics.nv, physics.nu) == (model.nq, model.nv, model.nu)
     return Scene(model, mx, (W, H), float(dt), int(num_people), gait, float(robot_radius),
                  torso, legs, model.geom("robot_collision").id, items, _footprints(items),
-                 mjx.put_model(physics), lay)
+                 mjx.put_model(physics, device=jax.local_devices()[0]), lay)
 
 
 def pedestrian_config(scene: Scene, **overrides) -> PedestrianConfig:

@@ -233,7 +233,9 @@ def build(width: int = 80, height: int = 60, camera_height: float = 2.8,
     hfov, vfov = fov_deg
     xml = mjcf(body, (camera_xy[0], camera_xy[1], camera_height), vfov)
     model = mujoco.MjModel.from_xml_string(xml)
-    mx = mjx.put_model(model)
+    # On this process's own device: MJX defaults to jax.devices()[0], which in a multi-process
+    # run belongs to process 0 only (and a closure over it cannot be compiled elsewhere).
+    mx = mjx.put_model(model, device=jax.local_devices()[0])
     cam = Camera((float(camera_xy[0]), float(camera_xy[1]), float(camera_height)), int(width),
                  int(height), (width / 2.0) / math.tan(math.radians(hfov) / 2.0),
                  (height / 2.0) / math.tan(math.radians(vfov) / 2.0))
