@@ -147,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--chunk and --max-detections must be positive")
         if not args.bag.exists():
             parser.error(f"--bag {args.bag} does not exist")
+        if args.static_points is not None:
+            _check_points_file(parser, args.static_points)
+        _check_writable(parser, args.out)
         from jaxtrack.io import bags
         from jaxtrack.io.replay import track_bag
 
@@ -185,8 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         demo_mod.run(episodes, steps, args.seed)
         return 0
     if args.scene == "person-following":
-        if args.episodes < 1 or args.particles < 2 or args.duration <= 0:
-            parser.error("--episodes, --particles and --duration must be positive")
+        if args.episodes < 1 or args.particles < 2 or not (math.isfinite(args.duration)
+                                                           and args.duration > 0):
+            parser.error("--episodes, --particles and --duration must be positive (and "
+                         "--duration finite)")
+        if args.batch_size is not None and args.batch_size < 1:
+            parser.error(f"--batch-size must be positive; got {args.batch_size}")
+        if args.animate and args.out is None:
+            parser.error("--animate needs --out (the folder the animation is written to)")
+        if args.out is not None:
+            _check_writable(parser, args.out)
         if not 0 <= args.people <= 15:
             parser.error(f"--people must be in [0, 15] (the scene holds 16 people); got "
                          f"{args.people}")
@@ -200,6 +211,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.episodes < 1 or args.particles < 1 or args.frames < 1:
         parser.error("--episodes, --particles and --frames must be positive")
+    if min(args.resolution) < 2:
+        parser.error(f"--resolution must be at least 2 x 2 pixels; got {args.resolution[0]} x "
+                     f"{args.resolution[1]}")
+    if args.out is not None:
+        _check_writable(parser, args.out)
     for flag, value in (("--lambda-x", args.lambda_x), ("--lambda-theta", args.lambda_theta),
                         ("--position-noise", args.position_noise),
                         ("--temperature", args.temperature)):
@@ -259,6 +275,19 @@ def _evaluate(parser, args) -> int:
         trajectories.write_summary(rows, args.out / "summary.csv", args.out / "summary.json")
         print(f"wrote {args.out / 'summary.csv'} and {args.out / 'summary.json'}")
     return 0
+
+
+def _check_points_file(parser, path: Path) -> None:
+    """A text file of ``x y`` rows, read before any work (a 3-column file is an error, not
+    silently reshaped)."""
+    try:
+        rows = np.loadtxt(path, ndmin=2)
+    except (OSError, ValueError) as err:
+        parser.error(f"--static-points {path}: {err}")
+    if rows.size and rows.shape[1] != 2:
+        parser.error(f"--static-points {path}: expected 2 columns (x y); got {rows.shape[1]}")
+    if not np.all(np.isfinite(rows)):
+        parser.error(f"--static-points {path}: NaN or inf in the points")
 
 
 def _check_writable(parser, out: Path) -> None:

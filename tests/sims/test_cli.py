@@ -61,3 +61,47 @@ def test_table_labels_a_subset_of_tasks_by_the_names_given():
     assert lines[2].startswith("P1 -90") and lines[3].startswith("P1 -45")
     with pytest.raises(ValueError, match="2 results and 1 names"):
         cli.task_table([_fake(rng) for _ in range(2)], 10, names=names[:1])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "person-following", "--duration", "nan"], "--duration finite"),
+    (["run", "person-following", "--batch-size", "-5"], "--batch-size must be positive"),
+    (["run", "person-following", "--batch-size", "0"], "--batch-size must be positive"),
+    (["run", "person-following", "--animate"], "--animate needs --out"),
+    (["run", "humanoid-reach", "--resolution", "0", "0"], "--resolution must be at least"),
+    (["run", "humanoid-reach", "--lambda-x", "nan"], "--lambda-x must be a finite"),
+    (["demo", "filters", "--episodes", "0"], "must be positive"),
+])
+def test_bad_run_arguments_exit_2_with_one_line_before_any_work(argv, message, capsys,
+                                                                 monkeypatch):
+    import sims.following.report as report
+
+    monkeypatch.setattr(report, "run_person_following",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    monkeypatch.setattr(cli, "run_humanoid_reach",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_unwritable_out_and_bad_static_points_are_found_first(tmp_path, capsys, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setattr(cli, "run_humanoid_reach",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    for argv in (["run", "humanoid-reach", "--out", str(blocker / "out")],
+                 ["run", "person-following", "--out", str(blocker / "out")]):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(argv)
+        assert exc.value.code == 2 and "not a writable directory" in capsys.readouterr().err
+    bag = tmp_path / "x.bag"
+    bag.write_bytes(b"#ROSBAG V2.0\n")
+    points = tmp_path / "points.txt"
+    points.write_text("1 2 3\n4 5 6\n")
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["track", "--bag", str(bag), "--laser-topic", "/scan", "--static-points",
+                  str(points), "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2 and "expected 2 columns" in capsys.readouterr().err
