@@ -179,14 +179,14 @@ def test_cli_rejects_bad_arguments(capsys):
     assert "invalid choice: 'warehouse'" in capsys.readouterr().err
 
 
-def test_cli_passes_the_layout_user_and_animation(monkeypatch):
+def test_cli_passes_the_layout_user_and_animation(monkeypatch, tmp_path):
     from sims import cli
     from sims.following import report
 
     seen = {}
     monkeypatch.setattr(report, "run_person_following", lambda *a, **kw: seen.update(kw))
     assert cli.main(["run", "person-following", "--layout", "room", "--user", "wander",
-                     "--animate"]) == 0
+                     "--animate", "--out", str(tmp_path)]) == 0
     assert seen["layout"] == "room" and seen["wander"] and seen["animate"]
     assert cli.main(["run", "person-following"]) == 0
     assert seen["layout"] == "shop" and not seen["wander"] and not seen["animate"]
