@@ -220,6 +220,7 @@ def _check_tracks_and_detections(means, covs, zs, H, track_mask, meas_mask):
     _checks.check_ndim("means", means, 2, "[K, n] predicted track means")
     K, n = _checks.shape_of(means)
     _checks.check_shape("covs", covs, (K, n, n), "predicted track covariances")
+    _checks.check_covariance("covs", covs, n, batch_axes=1)
     _checks.check_ndim("zs", zs, 2, "[M, m] detections")
     M, m = _checks.shape_of(zs)
     _checks.check_shape("H", H, (m, n), "measurement matrix")

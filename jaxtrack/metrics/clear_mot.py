@@ -327,7 +327,8 @@ def _frame(mem, t, oid, opos, opresent, hid, hpos, hpresent, threshold, conventi
     # 3. Events.
     is_matched = jnp.any(matched, 1)
     col = jnp.where(is_matched, jnp.argmax(matched, 1), -1) if H > 0 else jnp.full((G,), -1)
-    matched_hid = jnp.where(is_matched, hid[jnp.maximum(col, 0)], -1)
+    matched_hid = (jnp.where(is_matched, hid[jnp.maximum(col, 0)], -1) if H > 0
+                   else jnp.full((G,), -1, hid.dtype))
     match_dist = jnp.where(matched, dist, 0.0).sum(1)
     last = jnp.where(opresent, mem.last_hyp[safe_oid], -1)
     is_switch = is_matched & (last >= 0) & (last != matched_hid)

@@ -1,0 +1,244 @@
+"""Property-based probe of the public entry points: bad input gets a clear error naming the
+argument, valid edge cases (empty frames, zero tracks, T = 0) a finite, defined result.
+
+Every case starts from a valid call of one public function and applies one mutation of a class:
+
+- ``empty``: a zero-size axis where the design makes it valid (no detections, no tracks, no
+  frames) -> the call must succeed with finite outputs;
+- ``nan``: NaN or inf in one floating argument -> a ``ValueError`` naming it, or a finite result
+  where the design masks and counts non-finite data (measurements);
+- ``covariance``: a non-symmetric, non-PSD or NaN covariance -> ``ValueError`` naming it;
+- ``scale``: a negative or zero scale / noise -> ``ValueError`` naming it;
+- ``dtype``: integer, float16 or mixed float32 / float64 arguments -> a finite result in one
+  floating dtype, or a ``TypeError`` / ``ValueError`` naming the argument (half precision).
+
+Outcomes: ``clear`` (ValueError / TypeError whose message names the argument), ``handled``
+(finite result), ``garbage`` (a non-finite result where a finite one was due) and ``obscure``
+(any other exception, or an error not naming the argument). The property is that garbage and
+obscure never happen. ``JAXTRACK_FUZZ_EXAMPLES`` raises the number of examples (default 60 in
+CI); ``python -m tests.test_fuzz`` runs every case once and prints the table per class.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxtrack import association, metrics
+from jaxtrack.filters import kalman, particle, ukf
+from jaxtrack.filters.kalman import Gaussian
+from jaxtrack.models import motion
+
+EXAMPLES = int(os.environ.get("JAXTRACK_FUZZ_EXAMPLES", "60"))
+RNG = np.random.default_rng(0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Valid calls and their mutations. Each case: (class, function name, argument named in the
+# error, expect) with expect "error" (must be a clear error), "ok" (must be handled) or
+# "either" (a clear error or a finite result).
+
+F, Q = (np.asarray(a) for a in motion.constant_velocity(0.1, 0.5))
+H, R = np.eye(2, 4), 0.1 * np.eye(2)
+ZS = RNG.normal(size=(6, 2))
+INIT = Gaussian(np.zeros(4), np.eye(4))
+
+
+def kf(init=INIT, zs=ZS, F=F, Q=Q, H=H, R=R):
+    res = kalman.filter(init, zs, F, Q, H, R)
+    return (res.means, res.covs, res.log_likelihood)
+
+
+def ukf_run(init=INIT, zs=ZS, Q=Q, R=R):
+    res = ukf.filter(init, zs, lambda x: jnp.asarray(F, x.dtype) @ x, Q,
+                     lambda x: jnp.asarray(H, x.dtype) @ x, R)
+    return (res.means, res.covs, res.log_likelihood)
+
+
+def smoother(Q=Q):
+    return tuple(kalman.rts_smoother(kalman.filter(INIT, ZS, F, 0.01 * np.eye(4), H, R), F, Q))
+
+
+def pf(zs=ZS):
+    init = particle.init_from_gaussian(jax.random.PRNGKey(0), jnp.zeros(4), jnp.eye(4), 64)
+    res = particle.filter(jax.random.PRNGKey(1), init, jnp.asarray(zs),
+                          lambda k, x: x @ F.T + 0.1 * jax.random.normal(k, x.shape),
+                          lambda z, x: -0.5 * jnp.sum((x[:, :2] - z) ** 2, -1) / 0.1,
+                          vectorized=True)
+    return (res.means, res.log_likelihood)
+
+
+MEANS = RNG.normal(size=(3, 4))
+COVS = np.tile(np.eye(4), (3, 1, 1))
+DETS = RNG.normal(size=(5, 2))
+
+
+def innovations(means=MEANS, covs=COVS, zs=DETS, R=R):
+    inn = association.innovations(means, covs, zs, H, R)
+    return (inn.d2, inn.log_likelihood)
+
+
+def jpda(likelihoods=np.abs(RNG.normal(size=(3, 5))), p_detect=0.9, clutter_density=0.1):
+    return (association.jpda_marginals(likelihoods, p_detect, clutter_density),)
+
+
+def assign(cost=RNG.uniform(size=(3, 5))):
+    return (association.linear_sum_assignment(cost, unassigned_cost=1.0),)
+
+
+def jpda_update(states=Gaussian(MEANS, COVS), zs=DETS):
+    K, M = states.mean.shape[0], zs.shape[0]
+    beta = np.full((K, M + 1), 1.0 / (M + 1))
+    post = association.jpda_update(states, zs, beta, H, R)
+    return (post.mean, post.cov)
+
+
+GT_IDS = np.tile(np.arange(3), (5, 1))
+GT_POS = RNG.normal(size=(5, 3, 2))
+
+
+def mot(hyp_ids=GT_IDS + 10, hyp_pos=GT_POS + 0.1, threshold=0.5):
+    r = metrics.clear_mot(GT_IDS, GT_POS, None, hyp_ids, hyp_pos, None, threshold)
+    i = metrics.identity_metrics(GT_IDS, GT_POS, None, hyp_ids, hyp_pos, None, threshold)
+    h = metrics.hota(GT_IDS, GT_POS, None, hyp_ids, hyp_pos, None)
+    return (r.num_matches, i.idtp, h.hota)
+
+
+def ospa(estimates=GT_POS[0] + 0.1, c=1.0):
+    return (metrics.ospa(GT_POS[0], None, estimates, None, c).distance,)
+
+
+def cv(dt=0.1, q=0.5):
+    return motion.constant_velocity(dt, q)
+
+
+def _nan(a):
+    a = np.array(a, dtype=np.float64)
+    a.flat[0] = np.nan
+    return a
+
+
+CASES = [
+    # empty: valid, defined outputs
+    ("empty", kf, {"zs": np.zeros((0, 2))}, "zs", "ok"),
+    ("empty", ukf_run, {"zs": np.zeros((0, 2))}, "zs", "ok"),
+    ("empty", pf, {"zs": np.zeros((0, 2))}, "zs", "either"),
+    ("empty", innovations, {"zs": np.zeros((0, 2))}, "zs", "ok"),
+    ("empty", innovations, {"means": np.zeros((0, 4)), "covs": np.zeros((0, 4, 4))}, "means",
+     "ok"),
+    ("empty", jpda, {"likelihoods": np.zeros((3, 0)), "clutter_density": 0.1}, "likelihoods",
+     "ok"),
+    ("empty", jpda, {"likelihoods": np.zeros((0, 4))}, "likelihoods", "ok"),
+    ("empty", assign, {"cost": np.zeros((3, 0))}, "cost", "ok"),
+    ("empty", assign, {"cost": np.zeros((0, 3))}, "cost", "ok"),
+    ("empty", jpda_update, {"states": Gaussian(np.zeros((0, 4)), np.zeros((0, 4, 4)))},
+     "states", "ok"),
+    ("empty", jpda_update, {"zs": np.zeros((0, 2))}, "zs", "ok"),
+    ("empty", mot, {"hyp_ids": np.zeros((5, 0), int), "hyp_pos": np.zeros((5, 0, 2))},
+     "hyp_ids", "ok"),
+    ("empty", ospa, {"estimates": np.zeros((0, 2))}, "estimates", "ok"),
+    # nan
+    ("nan", kf, {"F": _nan(F)}, "F", "error"),
+    ("nan", kf, {"H": _nan(H)}, "H", "error"),
+    ("nan", kf, {"Q": _nan(Q)}, "Q", "error"),
+    ("nan", kf, {"R": _nan(R)}, "R", "error"),
+    ("nan", kf, {"init": Gaussian(_nan(np.zeros(4)), np.eye(4))}, "init", "error"),
+    ("nan", kf, {"zs": _nan(ZS)}, "zs", "ok"),  # a missing measurement, masked and counted
+    ("nan", ukf_run, {"zs": _nan(ZS)}, "zs", "ok"),
+    ("nan", pf, {"zs": _nan(ZS)}, "zs", "ok"),
+    ("nan", smoother, {"Q": _nan(Q)}, "Q", "error"),
+    ("nan", innovations, {"R": _nan(R)}, "R", "error"),
+    ("nan", jpda, {"p_detect": np.nan}, "p_detect", "error"),
+    ("nan", jpda, {"clutter_density": np.nan}, "clutter_density", "error"),
+    ("nan", assign, {"cost": _nan(RNG.uniform(size=(3, 5)))}, "cost", "ok"),  # forbidden pair
+    ("nan", mot, {"hyp_pos": _nan(GT_POS)}, "hyp_pos", "ok"),  # never matches
+    ("nan", mot, {"threshold": np.nan}, "threshold", "error"),
+    ("nan", ospa, {"c": np.nan}, "c", "error"),
+    ("nan", cv, {"q": np.nan}, "q", "error"),
+    # covariance
+    ("covariance", kf, {"Q": -Q}, "Q", "error"),
+    ("covariance", kf, {"R": np.array([[0.1, 0.05], [0.0, 0.1]])}, "R", "error"),
+    ("covariance", kf, {"R": np.zeros((2, 2))}, "R", "error"),
+    ("covariance", kf, {"init": Gaussian(np.zeros(4), -np.eye(4))}, "init", "error"),
+    ("covariance", ukf_run, {"Q": -Q}, "Q", "error"),
+    ("covariance", smoother, {"Q": -Q}, "Q", "error"),
+    ("covariance", innovations, {"covs": -COVS}, "covs", "error"),
+    ("covariance", jpda_update, {"states": Gaussian(MEANS, -COVS)}, "states", "error"),
+    # scale
+    ("scale", cv, {"q": -0.5}, "q", "error"),
+    ("scale", cv, {"dt": 0.0}, "dt", "error"),
+    ("scale", jpda, {"p_detect": 1.5}, "p_detect", "error"),
+    ("scale", jpda, {"clutter_density": -1.0}, "clutter_density", "error"),
+    ("scale", mot, {"threshold": -0.5}, "threshold", "error"),
+    ("scale", ospa, {"c": -1.0}, "c", "error"),
+    # dtype
+    ("dtype", kf, {"init": Gaussian(np.zeros(4, int), np.eye(4, dtype=int))}, "init", "ok"),
+    ("dtype", kf, {"init": Gaussian(np.zeros(4, np.float32), np.eye(4, dtype=np.float32))},
+     "init", "ok"),
+    ("dtype", kf, {"init": Gaussian(np.zeros(4, np.float16), np.eye(4, dtype=np.float16))},
+     "init", "either"),
+    ("dtype", kf, {"zs": ZS.astype(np.float32), "F": F.astype(np.float32)}, "zs", "ok"),
+    ("dtype", ukf_run, {"init": Gaussian(np.zeros(4, int), np.eye(4, dtype=int))}, "init",
+     "ok"),
+    ("dtype", innovations, {"means": MEANS.astype(np.float32)}, "means", "ok"),
+    ("dtype", jpda, {"likelihoods": np.abs(RNG.normal(size=(3, 5))).astype(np.float32)},
+     "likelihoods", "ok"),
+    ("dtype", mot, {"hyp_pos": (GT_POS + 0.1).astype(np.float32)}, "hyp_pos", "ok"),
+    ("dtype", mot, {"hyp_ids": (GT_IDS + 10).astype(float)}, "hyp_ids", "either"),
+]
+
+
+def classify(case) -> str:
+    _, fn, kwargs, arg, expect = case
+    try:
+        out = fn(**kwargs)
+    except (ValueError, TypeError) as err:
+        named = arg in str(err) or arg.split(".")[0] in str(err)
+        if expect == "ok" or not named:
+            return "obscure"
+        return "clear"
+    except Exception:  # noqa: BLE001 - anything else is the failure this probe looks for
+        return "obscure"
+    finite = all(np.all(np.isfinite(np.asarray(x, np.float64))) for x in
+                 jax.tree_util.tree_leaves(out) if np.asarray(x).size)
+    if expect == "error":
+        return "garbage"
+    return "handled" if finite else "garbage"
+
+
+@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
+          suppress_health_check=list(HealthCheck))
+@given(st.sampled_from(range(len(CASES))))
+def test_bad_input_is_a_clear_error_and_edge_cases_are_defined(i):
+    case = CASES[i]
+    outcome = classify(case)
+    assert outcome in ("clear", "handled"), (case[0], case[1].__name__, case[3], outcome)
+
+
+def test_every_class_is_probed():
+    assert {c[0] for c in CASES} == {"empty", "nan", "covariance", "scale", "dtype"}
+
+
+def table() -> str:
+    """Outcome counts per class over every case (``python -m tests.test_fuzz``)."""
+    counts = {}
+    for case in CASES:
+        counts.setdefault(case[0], Counter())[classify(case)] += 1
+    head = f"{'class':<12}{'tried':>7}{'clear':>7}{'handled':>9}{'garbage':>9}{'obscure':>9}"
+    lines = [head, "-" * len(head)]
+    for cls, c in counts.items():
+        lines.append(f"{cls:<12}{sum(c.values()):>7}{c['clear']:>7}{c['handled']:>9}"
+                     f"{c['garbage']:>9}{c['obscure']:>9}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    jax.config.update("jax_enable_x64", True)
+    print(table())
