@@ -49,7 +49,7 @@ __all__ = ["Summary", "MonteCarloResult", "evaluate", "warm_up", "summarize", "f
            "progress_bar", "DEFAULT_BLOCK"]
 
 #: Episodes per device in one compiled call (see the module doc, "Reproducibility").
-DEFAULT_BLOCK = 32
+DEFAULT_BLOCK = 64
 
 
 class Summary(NamedTuple):
