@@ -96,3 +96,20 @@ def frame_distances(seq, t, threshold=THRESHOLD):
     dist = np.sqrt(np.sum(diff * diff, -1))
     dist[dist > threshold] = np.nan
     return seq["gt_ids"][t][gm], seq["hyp_ids"][t][hm], dist
+
+
+def to_boxes(pos, rng):
+    """Image boxes (left, top, width, height) around ground-plane points, 100 px per metre."""
+    size = rng.uniform(40.0, 120.0, pos.shape[:-1] + (2,))
+    return np.concatenate([100.0 * pos - size / 2, size], -1)
+
+
+def sequences_with_boxes(num, box_seed):
+    """``num`` random sequences with boxes ``gt_box`` / ``hyp_box`` around their points, and
+    the same stacked: ``(list of dicts, dict of [num, ...] arrays)``."""
+    seqs = [random_sequence(seed) for seed in range(num)]
+    rng = np.random.default_rng(box_seed)
+    for s in seqs:
+        s["gt_box"] = to_boxes(s["gt_pos"], rng)
+        s["hyp_box"] = to_boxes(s["hyp_pos"], rng)
+    return seqs, {k: np.stack([s[k] for s in seqs]) for k in seqs[0]}

@@ -13,8 +13,7 @@ from trackeval.datasets._base_dataset import _BaseDataset
 from trackeval.metrics.hota import HOTA
 
 from jaxtrack import metrics
-from tests.metrics._sequences import G, H, T, random_sequence
-from tests.metrics.test_identity import to_boxes
+from tests.metrics._sequences import G, H, T, sequences_with_boxes
 
 NUM_SEQUENCES = 200
 ZERO_DISTANCE = 1.5
@@ -37,12 +36,7 @@ _BATCHED = {s: _batched(s) for s in ("euclidean", "iou")}
 
 @pytest.fixture(scope="module")
 def sequences():
-    seqs = [random_sequence(seed) for seed in range(NUM_SEQUENCES)]
-    rng = np.random.default_rng(1)
-    for s in seqs:
-        s["gt_box"] = to_boxes(s["gt_pos"], rng)
-        s["hyp_box"] = to_boxes(s["hyp_pos"], rng)
-    return seqs, {k: np.stack([s[k] for s in seqs]) for k in seqs[0]}
+    return sequences_with_boxes(NUM_SEQUENCES, box_seed=1)
 
 
 def trackeval_data(seq, similarity):

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from jaxtrack import metrics
-from tests.metrics._sequences import G, H, THRESHOLD, T, frame_distances, random_sequence
+from tests.metrics._sequences import (G, H, THRESHOLD, T, frame_distances,
+                                      sequences_with_boxes)
 
 NUM_SEQUENCES = 200
 FIELDS = ["idf1", "idp", "idr", "idtp", "idfp", "idfn"]
@@ -32,20 +33,9 @@ def _batched(distance):
 _BATCHED = {d: _batched(d) for d in ("euclidean", "iou")}
 
 
-def to_boxes(pos, rng):
-    """Image boxes (left, top, width, height) around ground-plane points, 100 px per metre."""
-    size = rng.uniform(40.0, 120.0, pos.shape[:-1] + (2,))
-    return np.concatenate([100.0 * pos - size / 2, size], -1)
-
-
 @pytest.fixture(scope="module")
 def sequences():
-    seqs = [random_sequence(seed) for seed in range(NUM_SEQUENCES)]
-    rng = np.random.default_rng(0)
-    for s in seqs:
-        s["gt_box"] = to_boxes(s["gt_pos"], rng)
-        s["hyp_box"] = to_boxes(s["hyp_pos"], rng)
-    return seqs, {k: np.stack([s[k] for s in seqs]) for k in seqs[0]}
+    return sequences_with_boxes(NUM_SEQUENCES, box_seed=0)
 
 
 def motmetrics_accumulator(seq, distance="euclidean", threshold=THRESHOLD):
