@@ -119,6 +119,49 @@ def cv(dt=0.1, q=0.5):
     return motion.constant_velocity(dt, q)
 
 
+def kf_step(state=INIT, z=ZS[0], Q=Q, R=R):
+    post, ll = kalman.update(kalman.predict(state, F, Q), z, H, R)
+    return (post.mean, post.cov, ll)
+
+
+def ekf_step(state=INIT, z=ZS[0], R=R):
+    from jaxtrack.filters import ekf
+
+    post, ll = ekf.update(ekf.predict(state, lambda x: jnp.asarray(F, x.dtype) @ x, Q), z,
+                          lambda x: jnp.asarray(H, x.dtype) @ x, R)
+    return (post.mean, post.cov, ll)
+
+
+def gate(d2=np.abs(RNG.normal(size=(3, 5))), prob=0.99):
+    return (association.gate(d2, 2, prob),)
+
+
+def nn_update(states=Gaussian(MEANS, COVS), zs=DETS, col_for_row=np.array([0, -1, 2])):
+    post, ll = association.nn_update(states, zs, col_for_row, H, R)
+    return (post.mean, post.cov, ll)
+
+
+def gospa(estimates=GT_POS[0] + 0.1, c=1.0, p=1.0):
+    return (metrics.gospa(GT_POS[0], None, estimates, None, c, p).distance,)
+
+
+def tracker_step(positions=DETS, capacity=6):
+    from jaxtrack.tracking import tracker
+
+    cfg = tracker.TrackerConfig(capacity=4)
+    params = tracker.TrackerParams.create(cfg, dtype=jnp.float64)
+    tracks = tracker.step(tracker.init(cfg, jnp.float64),
+                          tracker.make_detections(positions, capacity), params)
+    return (tracks.mean, tracks.cov)
+
+
+def legs_detect(ranges=np.full(90, 3.0)):
+    from jaxtrack.perception import legs
+
+    det = legs.detect(ranges, np.linspace(-1.5, 1.5, ranges.shape[0]), max_people=4)
+    return (det.people.xy,)
+
+
 def _nan(a):
     a = np.array(a, dtype=np.float64)
     a.flat[0] = np.nan
@@ -144,6 +187,11 @@ CASES = [
     ("empty", mot, {"hyp_ids": np.zeros((5, 0), int), "hyp_pos": np.zeros((5, 0, 2))},
      "hyp_ids", "ok"),
     ("empty", ospa, {"estimates": np.zeros((0, 2))}, "estimates", "ok"),
+    ("empty", gospa, {"estimates": np.zeros((0, 2))}, "estimates", "ok"),
+    ("empty", gate, {"d2": np.zeros((3, 0))}, "d2", "ok"),
+    ("empty", nn_update, {"zs": np.zeros((0, 2)), "col_for_row": np.full(3, -1)}, "zs", "ok"),
+    ("empty", tracker_step, {"positions": np.zeros((0, 2)), "capacity": 0}, "positions", "ok"),
+    ("empty", legs_detect, {"ranges": np.zeros(0)}, "ranges", "ok"),
     # nan
     ("nan", kf, {"F": _nan(F)}, "F", "error"),
     ("nan", kf, {"H": _nan(H)}, "H", "error"),
@@ -162,6 +210,14 @@ CASES = [
     ("nan", mot, {"threshold": np.nan}, "threshold", "error"),
     ("nan", ospa, {"c": np.nan}, "c", "error"),
     ("nan", cv, {"q": np.nan}, "q", "error"),
+    ("nan", kf_step, {"z": _nan(ZS[0])}, "z", "ok"),  # masked
+    ("nan", kf_step, {"Q": _nan(Q)}, "Q", "error"),
+    ("nan", ekf_step, {"z": _nan(ZS[0])}, "z", "ok"),
+    ("nan", ekf_step, {"R": _nan(R)}, "R", "error"),
+    ("nan", gate, {"prob": np.nan}, "prob", "error"),
+    ("nan", gospa, {"p": np.nan}, "p", "error"),
+    ("nan", tracker_step, {"positions": _nan(DETS)}, "positions", "either"),
+    ("nan", legs_detect, {"ranges": _nan(np.full(90, 3.0))}, "ranges", "either"),
     # covariance
     ("covariance", kf, {"Q": -Q}, "Q", "error"),
     ("covariance", kf, {"R": np.array([[0.1, 0.05], [0.0, 0.1]])}, "R", "error"),
@@ -171,6 +227,9 @@ CASES = [
     ("covariance", smoother, {"Q": -Q}, "Q", "error"),
     ("covariance", innovations, {"covs": -COVS}, "covs", "error"),
     ("covariance", jpda_update, {"states": Gaussian(MEANS, -COVS)}, "states", "error"),
+    ("covariance", kf_step, {"state": Gaussian(np.zeros(4), -np.eye(4))}, "state", "error"),
+    ("covariance", ekf_step, {"R": -R}, "R", "error"),
+    ("covariance", nn_update, {"states": Gaussian(MEANS, -COVS)}, "states", "error"),
     # scale
     ("scale", cv, {"q": -0.5}, "q", "error"),
     ("scale", cv, {"dt": 0.0}, "dt", "error"),
@@ -178,6 +237,9 @@ CASES = [
     ("scale", jpda, {"clutter_density": -1.0}, "clutter_density", "error"),
     ("scale", mot, {"threshold": -0.5}, "threshold", "error"),
     ("scale", ospa, {"c": -1.0}, "c", "error"),
+    ("scale", gospa, {"p": 0.5}, "p", "error"),
+    ("scale", gate, {"prob": 1.5}, "prob", "error"),
+    ("scale", legs_detect, {"ranges": np.full(90, -3.0)}, "ranges", "either"),
     # dtype
     ("dtype", kf, {"init": Gaussian(np.zeros(4, int), np.eye(4, dtype=int))}, "init", "ok"),
     ("dtype", kf, {"init": Gaussian(np.zeros(4, np.float32), np.eye(4, dtype=np.float32))},
@@ -192,6 +254,10 @@ CASES = [
      "likelihoods", "ok"),
     ("dtype", mot, {"hyp_pos": (GT_POS + 0.1).astype(np.float32)}, "hyp_pos", "ok"),
     ("dtype", mot, {"hyp_ids": (GT_IDS + 10).astype(float)}, "hyp_ids", "either"),
+    ("dtype", kf_step, {"state": Gaussian(np.zeros(4, np.float32), np.eye(4, dtype=np.float32))},
+     "state", "ok"),
+    ("dtype", tracker_step, {"positions": DETS.astype(np.float32)}, "positions", "ok"),
+    ("dtype", legs_detect, {"ranges": np.full(90, 3, int)}, "ranges", "either"),
 ]
 
 
