@@ -234,8 +234,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def _evaluate(parser, args) -> int:
     """``jaxtrack evaluate``: every user error is one line and exit code 2."""
-    import math as _math
-
     if len(args.gt) != len(args.tracks):
         parser.error(f"--gt and --tracks must name as many files; got {len(args.gt)} and "
                      f"{len(args.tracks)}")
@@ -245,9 +243,9 @@ def _evaluate(parser, args) -> int:
     if args.names is not None and len(set(args.names)) != len(args.names):
         parser.error("--names must be distinct")
     for flag, value in (("--threshold", args.threshold), ("--zero-distance", args.zero_distance)):
-        if not (_math.isfinite(value) and value > 0):
+        if not (math.isfinite(value) and value > 0):
             parser.error(f"{flag} must be a finite positive number; got {value}")
-    if args.min_confidence is not None and not _math.isfinite(args.min_confidence):
+    if args.min_confidence is not None and not math.isfinite(args.min_confidence):
         parser.error(f"--min-confidence must be finite; got {args.min_confidence}")
     for path in list(args.gt) + list(args.tracks):
         if not path.is_file():

@@ -415,12 +415,10 @@ def write_summary(rows: dict, csv_path=None, json_path=None) -> None:
 
 def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confidence):
     """Read two files and run the three metrics; numpy results and the file facts."""
-    if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)) \
-            or not np.isfinite(threshold) or threshold <= 0:
-        raise ValueError(f"threshold must be a positive number; got {threshold!r}")
-    if isinstance(zero_distance, bool) or not isinstance(zero_distance, (int, float, np.number)) \
-            or not np.isfinite(zero_distance) or zero_distance <= 0:
-        raise ValueError(f"zero_distance must be a positive number (m); got {zero_distance!r}")
+    for name, value in (("threshold", threshold), ("zero_distance", zero_distance)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
+                or not np.isfinite(value) or value <= 0:
+            raise ValueError(f"{name} must be a positive number; got {value!r}")
     _checks.check_options("fmt", (fmt,), FORMATS)
     gt_fmt = _sniff(gt_path) if fmt == "auto" else fmt
     hyp_fmt = _sniff(tracks_path) if fmt == "auto" else fmt
