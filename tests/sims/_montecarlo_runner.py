@@ -4,6 +4,7 @@
 Modes:
 - ``sizes``: batch sizes 8, 16 and 32 on the first device, and batch size 16 on every device
   (run with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``);
+- ``single``: batch size 8 on the first device only;
 - ``process PID NPROC PORT``: one of NPROC processes (`jax.distributed.initialize`, CPU);
 - ``resumable``: a run saved batch by batch to ``OUT.run.npz`` (to be killed), then
 - ``resume``: the same run resumed from that file, and the same run without it.
@@ -52,6 +53,8 @@ def main(argv):
             results[f"one_{bs}"] = run(batch_size=bs, devices=jax.devices()[:1])
         results["all_16"] = run(batch_size=16)
         results["num_devices"] = {"n": np.asarray(len(jax.devices()))}
+    elif mode == "single":
+        results["one_8"] = run(batch_size=8, devices=jax.devices()[:1])
     elif mode == "process":
         results["run"] = run(batch_size=8)
         out = f"{out}.{pid}"

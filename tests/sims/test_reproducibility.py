@@ -83,7 +83,7 @@ def test_two_processes_give_the_single_process_metrics(tmp_path):
     for p in procs:
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-3000:]
-    _run(["humanoid", "sizes", str(tmp_path / "single")])
+    _run(["humanoid", "single", str(tmp_path / "single")])
     single = _load(tmp_path / "single.npz")["one_8"]
     for pid in (0, 1):
         _assert_equal(_load(tmp_path / f"mp.{pid}.npz")["run"], single)
