@@ -121,6 +121,26 @@ def main(argv: list[str] | None = None) -> int:
                           "from a map; laser people within 0.3 m of one are dropped")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", type=Path, required=True, help="output directory")
+    tl = sub.add_parser("train-legs", help="train the learned leg detector (a random forest "
+                                           "over scan-segment features) on recorded bags; "
+                                           "needs scikit-learn (pip install 'jaxtrack[train]')")
+    tl.add_argument("--positive", type=Path, nargs="+", required=True,
+                    help="bags with scans and labelled leg positions (PoseArray)")
+    tl.add_argument("--negative", type=Path, nargs="*", default=[],
+                    help="bags of scans without people (every segment a non-leg)")
+    tl.add_argument("--out", type=Path, required=True, help="model file to write (.npz)")
+    tl.add_argument("--scan-topic", default="/training_scan",
+                    help="LaserScan topic of the positive bags")
+    tl.add_argument("--labels-topic", default="/leg_cluster_positions",
+                    help="PoseArray topic of the leg labels (each labels the next scan)")
+    tl.add_argument("--negative-topics", nargs="+", default=None,
+                    help="LaserScan topics of the negative bags (default: all of them)")
+    tl.add_argument("--jump", type=float, default=0.13, help="segment break distance (m)")
+    tl.add_argument("--match-radius", type=float, default=0.15,
+                    help="a segment is a leg within this distance of a label (m)")
+    tl.add_argument("--trees", type=int, default=48)
+    tl.add_argument("--depth", type=int, default=16)
+    tl.add_argument("--seed", type=int, default=0)
     ev = sub.add_parser("evaluate", help="py-motmetrics' MOTChallenge summary (CLEAR MOT, IDF1, "
                                          "HOTA) of tracks files against ground truth")
     ev.add_argument("--gt", type=Path, nargs="+", required=True,
@@ -169,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "evaluate":
         return _evaluate(parser, args)
+    if args.command == "train-legs":
+        return _train_legs(parser, args)
     if args.command == "demo":
         if args.which != "filters":
             if args.episodes is not None or args.steps is not None:
@@ -272,6 +294,51 @@ def _evaluate(parser, args) -> int:
     if args.out is not None:
         trajectories.write_summary(rows, args.out / "summary.csv", args.out / "summary.json")
         print(f"wrote {args.out / 'summary.csv'} and {args.out / 'summary.json'}")
+    return 0
+
+
+def _train_legs(parser, args) -> int:
+    """``jaxtrack train-legs``: arguments checked before any work, then `leg_dataset.train`."""
+    for path in [*args.positive, *args.negative]:
+        if not path.exists():
+            parser.error(f"{path} does not exist")
+    if not (args.jump > 0 and args.match_radius > 0 and math.isfinite(args.jump)
+            and math.isfinite(args.match_radius)):
+        parser.error("--jump and --match-radius must be positive and finite")
+    if args.trees < 1 or args.depth < 1:
+        parser.error("--trees and --depth must be positive")
+    _check_writable(parser, args.out.parent if str(args.out.parent) else Path("."))
+    try:
+        import sklearn  # noqa: F401
+    except ImportError:
+        parser.exit(2, "jaxtrack train-legs: needs scikit-learn: pip install 'jaxtrack[train]'\n")
+    from jaxtrack.io import bags, leg_dataset
+    from jaxtrack.perception import leg_classifier
+
+    try:
+        positive = [leg_dataset.read_labelled(p, args.scan_topic, args.labels_topic)
+                    for p in args.positive]
+        negative = []
+        for p in args.negative:
+            scan_topics = args.negative_topics or [
+                t for t, kind in bags.topics(p).items() if kind == bags.LASER_SCAN]
+            if not scan_topics:
+                parser.exit(2, f"jaxtrack train-legs: {p} has no LaserScan topic\n")
+            negative += [leg_dataset.read_unlabelled(p, t) for t in scan_topics]
+        model, report = leg_dataset.train(positive, negative, jump=args.jump,
+                                          n_estimators=args.trees, max_depth=args.depth,
+                                          seed=args.seed, match_radius=args.match_radius)
+    except (bags.BagError, ValueError) as err:
+        parser.exit(2, f"jaxtrack train-legs: {err}\n")
+    leg_classifier.save(args.out, model, sources="\n".join(report.sources),
+                        segments=report.num_segments, legs=report.num_legs,
+                        scans=report.num_scans, held_out_precision=report.held_out_precision,
+                        held_out_recall=report.held_out_recall)
+    print(f"{report.num_scans} scans, {report.num_segments} segments, {report.num_legs} legs "
+          f"({report.dropped} segments beyond capacity)")
+    print(f"decision threshold {report.decision:.3f}: held-out segment precision "
+          f"{report.held_out_precision:.3f}, recall {report.held_out_recall:.3f}")
+    print(f"wrote {args.out}")
     return 0
 
 

@@ -166,6 +166,8 @@ class Detections(NamedTuple):
       segments: `Segments`; features: `SegmentFeatures`.
       points: [B, 2] the scan's return points (sensor frame, 0 where invalid); valid: [B]
         returns within ``(min_range, max_range)``, e.g. obstacle points for a safety layer.
+      scores: [S] leg probability of each segment with a learned classifier; 1.0 / 0.0 for
+        the geometric candidates.
     """
 
     people: People
@@ -175,6 +177,7 @@ class Detections(NamedTuple):
     features: SegmentFeatures
     points: Array
     valid: Array
+    scores: Array
 
 
 # ---------------------------------------------------------------------------------------------
@@ -305,9 +308,14 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
 
 def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
            max_segments: int = 64, max_people: int = 16,
-           prev_legs: tuple[Array, Array] | None = None) -> Detections:
+           prev_legs: tuple[Array, Array] | None = None, classifier=None) -> Detections:
     """The whole leg detector on one scan: `segment` -> `features` -> `leg_candidates` ->
     `pair_legs`. Everything in the sensor frame.
+
+    With a ``classifier`` (`jaxtrack.perception.leg_classifier.LegClassifier`, e.g. its
+    ``default()``), the legs are the segments it classifies as legs (on the segmentation it
+    was trained with: its ``jump`` replaces ``params.jump``) instead of the geometric
+    thresholds of `leg_candidates`; the rest of the chain is the same.
 
     Args:
       ranges: [B] ranges; angles: [B] beam angles.
@@ -315,6 +323,7 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
       max_segments, max_people: static capacities S and P.
       prev_legs: optional ``(legs_xy, legs_mask)`` of the previous `Detections` (expressed in
         the current sensor frame when the robot moved) for the motion cue.
+      classifier: optional learned leg classifier (a pytree; may be traced).
 
     Returns:
       `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features, points [B, 2],
@@ -332,16 +341,26 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         # A scan without beams: detect on one beam without a return, then drop that beam.
         dtype = jnp.result_type(ranges, angles, float)
         det = detect(jnp.full((1,), jnp.inf, dtype), jnp.zeros((1,), dtype), params,
-                     max_segments=max_segments, max_people=max_people, prev_legs=prev_legs)
+                     max_segments=max_segments, max_people=max_people, prev_legs=prev_legs,
+                     classifier=classifier)
         return det._replace(points=det.points[:0], valid=det.valid[:0],
                             segments=det.segments._replace(labels=det.segments.labels[:0]))
     xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
                         params.max_range)
-    segs = _segment(xy, valid, params.jump, int(max_segments))
+    jump = params.jump if classifier is None else classifier.jump
+    segs = _segment(xy, valid, jump, int(max_segments))
     feats = _features(xy, segs)
-    legs = leg_candidates(feats, params)
+    if classifier is None:
+        legs = leg_candidates(feats, params)
+        scores = legs.astype(xy.dtype)
+    else:
+        # Imported here: the feature and classifier modules build on this one.
+        from jaxtrack.perception import leg_classifier, leg_features
+        X = leg_features.segment_features(xy, valid, segs)
+        legs, scores = leg_classifier.is_leg(classifier, X, segs.mask)
+        scores = scores.astype(xy.dtype)
     people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)
-    return Detections(people, feats.position, legs, segs, feats, xy, valid)
+    return Detections(people, feats.position, legs, segs, feats, xy, valid, scores)
 
 
 def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(), *,

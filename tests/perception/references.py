@@ -78,3 +78,64 @@ def pca_minor_axis(xy):
 
 def wrap(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def leg_features(xy, valid, first, last, mask, max_radius=10.0, max_gap=100.0):
+    """Arras et al.'s segment features, one segment and one point at a time (the definitions
+    of `jaxtrack.perception.leg_features`, written out independently)."""
+    xy = np.asarray(xy, np.float64)
+    valid_idx = np.flatnonzero(valid)
+    rows = []
+    for f, l, m in zip(first, last, mask):
+        if not m:
+            rows.append(np.zeros(14))
+            continue
+        p = xy[f:l + 1]
+        n = len(p)
+        c = p.mean(0)
+        u = p - c
+        scatter = u.T @ u
+        lam, vec = np.linalg.eigh(scatter)
+        lam_min = max(lam[0], 0.0)
+        proj = u @ vec[:, 1]
+        length = proj.max() - proj.min()
+        std = math.sqrt(np.sum(u * u) / (n - 1)) if n > 1 else 0.0
+        width = float(np.linalg.norm(p[-1] - p[0]))
+        # Kasa circle: least squares of x^2 + y^2 + D x + E y + F = 0 on centred points.
+        rho = None
+        det = np.linalg.det(scatter)
+        half_tr = 0.5 * np.trace(scatter)
+        if n >= 3 and det > 1e-6 * max(half_tr, 1e-30) ** 2:
+            A = np.column_stack([u, np.ones(n)])
+            sol = np.linalg.lstsq(A, -np.sum(u * u, 1), rcond=None)[0]
+            D, E, F = sol
+            rho_sq = (D * D + E * E) / 4 - F
+            if rho_sq > 0:
+                rho = math.sqrt(rho_sq)
+                centre = np.array([-D / 2, -E / 2])
+        if rho is None:
+            circularity, radius = lam_min, max_radius
+        else:
+            circularity = float(np.sum((np.linalg.norm(u - centre, axis=1) - rho) ** 2))
+            radius = min(rho, max_radius)
+        steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        boundary = float(steps.sum())
+        regularity = float(np.std(steps)) if n >= 3 else 0.0
+        curv, turn = [], []
+        for j in range(1, n - 1):
+            a, b = p[j] - p[j - 1], p[j + 1] - p[j]
+            chord = np.linalg.norm(p[j + 1] - p[j - 1])
+            cross = a[0] * b[1] - a[1] * b[0]
+            denom = np.linalg.norm(a) * np.linalg.norm(b) * chord
+            curv.append(2 * abs(cross) / denom if denom > 0 else 0.0)
+            turn.append(math.atan2(cross, a @ b) if (abs(cross) + abs(a @ b)) > 0 else 0.0)
+        mean_curv = float(np.mean(curv)) if curv else 0.0
+        mean_turn = float(np.mean(turn)) if turn else 0.0
+        before = valid_idx[valid_idx < f]
+        after = valid_idx[valid_idx > l]
+        gap_before = float(np.linalg.norm(p[0] - xy[before[-1]])) if len(before) else max_gap
+        gap_after = float(np.linalg.norm(xy[after[0]] - p[-1])) if len(after) else max_gap
+        rows.append(np.array([n, width, length, std, lam_min, circularity, radius, boundary,
+                              regularity, mean_curv, mean_turn, gap_before, gap_after,
+                              float(np.linalg.norm(c))]))
+    return np.array(rows)
