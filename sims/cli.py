@@ -119,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--static-points", type=Path, default=None,
                      help="text file of 'x y' rows (odometry frame): table and chair legs "
                           "from a map; laser people within 0.3 m of one are dropped")
+    trk.add_argument("--detector", default="learned",
+                     help="leg detector: 'learned' (the shipped classifier), 'geometric', or a "
+                          "model file of `jaxtrack train-legs`")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", type=Path, required=True, help="output directory")
     tl = sub.add_parser("train-legs", help="train the learned leg detector (a random forest "
@@ -169,6 +172,13 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--bag {args.bag} does not exist")
         if args.static_points is not None:
             _check_points_file(parser, args.static_points)
+        if args.detector not in ("learned", "geometric"):
+            from jaxtrack.perception import leg_classifier
+
+            try:
+                leg_classifier.load(args.detector)
+            except (OSError, ValueError) as err:
+                parser.error(f"--detector {args.detector}: {err}")
         _check_writable(parser, args.out)
         from jaxtrack.io import bags
         from jaxtrack.io.replay import track_bag
@@ -179,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
                       estimator=args.estimator, chunk=args.chunk,
                       max_detections=args.max_detections, seed=args.seed,
                       time_source=args.time_source, static_points=args.static_points,
-                      pan_topic=args.pan_topic, pan_joint=args.pan_joint)
+                      pan_topic=args.pan_topic, pan_joint=args.pan_joint,
+                      detector=args.detector)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         except ImportError as err:

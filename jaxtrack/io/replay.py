@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxtrack import geometry, montecarlo
 from jaxtrack.io import bags
-from jaxtrack.perception import legs, sensing
+from jaxtrack.perception import leg_classifier, legs, sensing
 from jaxtrack.tracking import user
 
 Array = jax.Array
@@ -68,8 +68,9 @@ class _Static(NamedTuple):
 def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
           detections: bags.PersonDetections | None = None, estimator="gnn", *,
           chunk: int = 64, key: Array | None = None, user_xy=None, params=None,
-          leg_params: legs.LegParams = legs.LegParams(), laser_mount=(0.0, 0.0),
-          max_segments: int = 48, max_laser_people: int = 8, static_xy=None,
+          leg_params: legs.LegParams | None = None, laser_mount=(0.0, 0.0),
+          detector: str = "learned", max_segments: int = 64, max_laser_people: int = 8,
+          static_xy=None,
           static_radius: float = 0.3, pan: bags.JointStates | None = None,
           pan_joint: str = "camera_pan", dtype=jnp.float32, progress: bool = True,
           stream=None) -> Tracks:
@@ -87,7 +88,10 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         nearest to the robot in front of it (else 1 m ahead).
       params: the estimator's parameters (default its ``params`` at the scans' period).
       leg_params, laser_mount, max_segments, max_laser_people: the leg detector and the laser's
-        (x, y) on the robot (`sensing.SensingConfig`).
+        (x, y) on the robot (`sensing.SensingConfig`). By default ``leg_params`` takes its range
+        limits from the scans (``range_min`` / ``range_max`` of the messages).
+      detector: ``"learned"`` (the shipped leg classifier, trained on real scans),
+        ``"geometric"`` or a model file of ``jaxtrack train-legs`` (`sensing.SensingConfig`).
       static_xy: [F, 2] known leg-like fixed objects (table and chair legs) in the odometry
         frame, from a map: laser people within ``static_radius`` of one are dropped (furniture
         legs 0.3-0.5 m apart do look like a person's legs).
@@ -155,9 +159,13 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     if params is None:
         params = est.params(dt=dt, dtype=dtype)
     key = jax.random.PRNGKey(0) if key is None else key
+    if leg_params is None:
+        leg_params = legs.LegParams(max_range=float(laser.range_max),
+                                    min_range=max(float(laser.range_min), 0.0))
     scfg = sensing.SensingConfig(legs.LegParams(*(float(x) for x in leg_params)),
                                  int(max_segments), int(max_laser_people),
-                                 tuple(map(float, laser_mount)), float(static_radius))
+                                 tuple(map(float, laser_mount)), float(static_radius),
+                                 detector=str(detector))
     static_xy = np.zeros((0, 2)) if static_xy is None else np.asarray(static_xy, np.float64)
     if static_xy.ndim != 2 or static_xy.shape[1] != 2:
         raise ValueError(f"static_xy must be [F, 2]; got shape {static_xy.shape}")
@@ -207,7 +215,9 @@ _detect = jax.jit(legs.detect, static_argnames=("max_segments", "max_people"))
 def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
     """The laser person nearest to the robot with x > 0 (robot frame), else 1 m ahead."""
     det = _detect(jnp.asarray(ranges), jnp.asarray(angles), cfg.leg_params,
-                  max_segments=cfg.max_segments, max_people=cfg.max_people)
+                  max_segments=cfg.max_segments, max_people=cfg.max_people,
+                  classifier=leg_classifier.resolve(cfg.detector),
+                  threshold=cfg.leg_threshold)
     xy = np.asarray(det.people.xy) + np.asarray(cfg.laser_mount)
     ok = np.asarray(det.people.mask) & (xy[:, 0] > 0)
     rel = (xy[np.argmin(np.where(ok, np.sum(xy**2, -1), np.inf))] if ok.any()
@@ -249,12 +259,13 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               odom_topic: str | None = None, estimator: str = "gnn", chunk: int = 64,
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
               static_points=None, pan_topic: str | None = None,
-              pan_joint: str = "camera_pan", stream=sys.stdout) -> dict:
+              pan_joint: str = "camera_pan", detector: str = "learned",
+              stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
     (`track`'s ``static_xy``). ``pan_topic``: ``sensor_msgs/JointState`` of the camera's
-    pan unit (joint ``pan_joint``).
+    pan unit (joint ``pan_joint``). ``detector``: `track`'s.
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -277,7 +288,7 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
                  if static_points is not None else None)
     t0 = time.perf_counter()
     tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed),
-                   static_xy=static_xy, pan=pan, pan_joint=pan_joint)
+                   static_xy=static_xy, pan=pan, pan_joint=pan_joint, detector=detector)
     seconds = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

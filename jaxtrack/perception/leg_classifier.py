@@ -47,7 +47,7 @@ from jaxtrack.perception import leg_features
 Array = jax.Array
 
 __all__ = ["LegClassifier", "predict_proba", "is_leg", "from_sklearn", "fit", "save", "load",
-           "default", "DEFAULT_MODEL"]
+           "default", "resolve", "DEFAULT_MODEL"]
 
 DEFAULT_MODEL = "leg_forest.npz"
 _FORMAT = 1
@@ -261,3 +261,18 @@ def default() -> LegClassifier:
     ref = resources.files("jaxtrack.perception") / "data" / DEFAULT_MODEL
     with resources.as_file(ref) as p:
         return load(p)
+
+
+def resolve(detector: str) -> LegClassifier | None:
+    """A leg detector by name: ``"geometric"`` (None: `legs.leg_candidates`' thresholds),
+    ``"learned"`` (`default`) or the path of a model file (`load`, cached by path)."""
+    if detector == "geometric":
+        return None
+    if detector == "learned":
+        return default()
+    return _load_cached(str(Path(detector).resolve()))
+
+
+@functools.lru_cache(maxsize=8)
+def _load_cached(path: str) -> LegClassifier:
+    return load(path)

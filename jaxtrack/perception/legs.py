@@ -308,7 +308,8 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
 
 def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
            max_segments: int = 64, max_people: int = 16,
-           prev_legs: tuple[Array, Array] | None = None, classifier=None) -> Detections:
+           prev_legs: tuple[Array, Array] | None = None, classifier=None,
+           threshold=None) -> Detections:
     """The whole leg detector on one scan: `segment` -> `features` -> `leg_candidates` ->
     `pair_legs`. Everything in the sensor frame.
 
@@ -324,6 +325,8 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
       prev_legs: optional ``(legs_xy, legs_mask)`` of the previous `Detections` (expressed in
         the current sensor frame when the robot moved) for the motion cue.
       classifier: optional learned leg classifier (a pytree; may be traced).
+      threshold: with a classifier, the leg probability from which a segment is a leg
+        (default the classifier's ``decision``).
 
     Returns:
       `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features, points [B, 2],
@@ -342,7 +345,7 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         dtype = jnp.result_type(ranges, angles, float)
         det = detect(jnp.full((1,), jnp.inf, dtype), jnp.zeros((1,), dtype), params,
                      max_segments=max_segments, max_people=max_people, prev_legs=prev_legs,
-                     classifier=classifier)
+                     classifier=classifier, threshold=threshold)
         return det._replace(points=det.points[:0], valid=det.valid[:0],
                             segments=det.segments._replace(labels=det.segments.labels[:0]))
     xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
@@ -357,6 +360,8 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         # Imported here: the feature and classifier modules build on this one.
         from jaxtrack.perception import leg_classifier, leg_features
         X = leg_features.segment_features(xy, valid, segs)
+        if threshold is not None:
+            classifier = classifier._replace(decision=jnp.asarray(threshold, jnp.float32))
         legs, scores = leg_classifier.is_leg(classifier, X, segs.mask)
         scores = scores.astype(xy.dtype)
     people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)

@@ -23,6 +23,9 @@ from sims import cli  # noqa: E402
 from sims.following import lidar  # noqa: E402
 
 CHUNK = 16
+# Simulated legs are exact arcs, the geometric detector's model; the learned one (the replay's
+# default) is trained on real scans and tested on them (tests/io/test_replay_real.py).
+DETECTOR = "geometric"
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +51,7 @@ def _furniture(sc):
 @pytest.fixture(scope="module")
 def memory_tracks(recording):
     sc, _, (laser, odom, det) = recording
-    return replay.track(laser, odom, det, "gnn", chunk=CHUNK, progress=False,
+    return replay.track(laser, odom, det, "gnn", chunk=CHUNK, progress=False, detector=DETECTOR,
                         static_xy=_furniture(sc))
 
 
@@ -83,7 +86,7 @@ def test_tracker_from_bag_equals_in_memory_and_follows_the_user(recording, writt
                                                                 memory_tracks, kind):
     sc, rec, (_, _, det) = recording
     got = replay.track(*_read(written[kind], det.xy.shape[1]), "gnn", chunk=CHUNK,
-                       progress=False, static_xy=_furniture(sc))
+                       progress=False, detector=DETECTOR, static_xy=_furniture(sc))
     for name in ("ids", "pos", "mask", "user", "user_found", "frames"):
         np.testing.assert_array_equal(getattr(got, name), getattr(memory_tracks, name), name)
     # Independent check against the truth: the user estimate sits on the user (odometry frame
@@ -99,7 +102,7 @@ def test_tracker_from_bag_equals_in_memory_and_follows_the_user(recording, writt
 def test_chunking_does_not_change_the_output(recording, memory_tracks):
     sc, _, (laser, odom, det) = recording
     # 30 frames in chunks of 7: four full chunks and a padded one, state carried across.
-    got = replay.track(laser, odom, det, "gnn", chunk=7, progress=False,
+    got = replay.track(laser, odom, det, "gnn", chunk=7, progress=False, detector=DETECTOR,
                        static_xy=_furniture(sc))
     for name in ("ids", "pos", "mask", "user", "user_found"):
         np.testing.assert_allclose(getattr(got, name), getattr(memory_tracks, name),
@@ -109,11 +112,12 @@ def test_chunking_does_not_change_the_output(recording, memory_tracks):
 def test_track_rejects_bad_arguments(recording):
     _, _, (laser, odom, det) = recording
     with pytest.raises(ValueError, match="estimator"):
-        replay.track(laser, odom, det, "kcf", progress=False)
+        replay.track(laser, odom, det, "kcf", progress=False, detector=DETECTOR)
     with pytest.raises(ValueError, match="chunk"):
-        replay.track(laser, odom, det, "gnn", chunk=0, progress=False)
+        replay.track(laser, odom, det, "gnn", chunk=0, progress=False, detector=DETECTOR)
     with pytest.raises(ValueError, match="no laser scan"):
-        replay.track(laser._replace(valid=np.zeros_like(laser.valid)), progress=False)
+        replay.track(laser._replace(valid=np.zeros_like(laser.valid)), progress=False,
+                     detector=DETECTOR)
 
 
 def test_cli_track_writes_a_mot_csv_and_evaluate_prints_the_summary(recording, written,
@@ -124,6 +128,7 @@ def test_cli_track_writes_a_mot_csv_and_evaluate_prints_the_summary(recording, w
     furniture = tmp_path / "furniture.txt"
     np.savetxt(furniture, _furniture(sc))
     code = cli.main(["track", "--bag", str(written["ros1"]), "--laser-topic", "/scan",
+                     "--detector", "geometric",
                      "--odom-topic", "/odom", "--detections-topic", "/people",
                      "--max-detections", str(det.xy.shape[1]), "--estimator", "gnn",
                      "--chunk", str(CHUNK), "--static-points", str(furniture),
@@ -164,6 +169,7 @@ def test_cli_track_unknown_topic_lists_the_topics(written, tmp_path, capsys):
     assert "'/base_scan'" in err and "/scan (sensor_msgs/msg/LaserScan)" in err
     with pytest.raises(SystemExit):
         cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/scan",
+                  "--detector", "geometric",
                   "--estimator", "kcf", "--out", str(tmp_path)])
     assert "invalid choice: 'kcf'" in capsys.readouterr().err
 
@@ -176,6 +182,7 @@ def test_cli_track_without_rosbags_says_how_to_install_it(written, tmp_path, cap
         monkeypatch.setitem(sys.modules, name, None)
     with pytest.raises(SystemExit) as exc:
         cli.main(["track", "--bag", str(written["ros2"]), "--laser-topic", "/scan",
+                  "--detector", "geometric",
                   "--out", str(tmp_path)])
     assert exc.value.code == 2
     assert 'pip install "jaxtrack[ros]"' in capsys.readouterr().err
@@ -186,7 +193,7 @@ def test_laser_only_without_odometry_tracks_in_the_robot_frame(recording):
     # No odometry: the identity pose, so the estimate is in the current robot frame (the
     # seed-002 Kalman filter, which works in that frame anyway). In float64 (the other
     # replays run in float32).
-    got = replay.track(laser, None, None, "kf", chunk=CHUNK, progress=False,
+    got = replay.track(laser, None, None, "kf", chunk=CHUNK, progress=False, detector=DETECTOR,
                        dtype=jnp.float64)
     assert got.user.dtype == np.float64 and got.pos.dtype == np.float64
     truth = np.stack([np.asarray(geometry.to_frame(jnp.asarray(r), jnp.asarray(p[0])))
@@ -212,6 +219,7 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(recording, writt
         sys.meta_path.insert(0, NoMuJoCo())
         from sims import cli
         assert cli.main(["track", "--bag", {str(written["ros1"])!r}, "--laser-topic", "/scan",
+                         "--detector", "geometric",
                          "--odom-topic", "/odom", "--detections-topic", "/people",
                          "--max-detections", "{det.xy.shape[1]}", "--estimator", "gnn",
                          "--chunk", "{CHUNK}", "--static-points", {str(furniture)!r},
@@ -263,12 +271,13 @@ def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(t
     bags.write_bag(path, 1, laser=laser, odometry=odom, detections=det, joints=joints)
     back = bags.read_joint_states(path, "/joint_states")
     np.testing.assert_array_equal(back.position[:, 0], rec.pan)
-    with_pan = replay.track(laser, odom, det, "pf", pan=joints, progress=False, chunk=CHUNK)
-    again = replay.track(laser, odom, det, "pf", pan=back, progress=False, chunk=CHUNK)
-    ahead = replay.track(laser, odom, det, "pf", progress=False, chunk=CHUNK)
+    kw = dict(progress=False, detector=DETECTOR, chunk=CHUNK)
+    with_pan = replay.track(laser, odom, det, "pf", pan=joints, **kw)
+    again = replay.track(laser, odom, det, "pf", pan=back, **kw)
+    ahead = replay.track(laser, odom, det, "pf", **kw)
     np.testing.assert_array_equal(with_pan.user, again.user)
     assert not np.array_equal(with_pan.user, ahead.user)
     with pytest.raises(ValueError, match="no joint"):
-        replay.track(laser, odom, det, "pf", pan=joints, pan_joint="tilt", progress=False)
+        replay.track(laser, odom, det, "pf", pan=joints, pan_joint="tilt", **kw)
     with pytest.raises(ValueError, match="no pan angle"):
         rec_mod.pan_record(rec._replace(pan=None))
