@@ -122,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--detector", default="learned",
                      help="leg detector: 'learned' (the shipped classifier), 'geometric', or a "
                           "model file of `jaxtrack train-legs`")
+    trk.add_argument("--animate", action="store_true",
+                     help="also write an animated top view, replay.gif")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", type=Path, required=True, help="output directory")
     tl = sub.add_parser("train-legs", help="train the learned leg detector (a random forest "
@@ -190,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
                       max_detections=args.max_detections, seed=args.seed,
                       time_source=args.time_source, static_points=args.static_points,
                       pan_topic=args.pan_topic, pan_joint=args.pan_joint,
-                      detector=args.detector)
+                      detector=args.detector, animate=args.animate)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         except ImportError as err:

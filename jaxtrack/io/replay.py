@@ -36,7 +36,7 @@ from jaxtrack.tracking import user
 
 Array = jax.Array
 
-__all__ = ["Tracks", "track", "track_bag", "write_top_view"]
+__all__ = ["Tracks", "track", "track_bag", "write_top_view", "write_animation"]
 
 
 class Tracks(NamedTuple):
@@ -260,12 +260,13 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
               static_points=None, pan_topic: str | None = None,
               pan_joint: str = "camera_pan", detector: str = "learned",
-              stream=sys.stdout) -> dict:
+              animate: bool = False, stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
     (`track`'s ``static_xy``). ``pan_topic``: ``sensor_msgs/JointState`` of the camera's
-    pan unit (joint ``pan_joint``). ``detector``: `track`'s.
+    pan unit (joint ``pan_joint``). ``detector``: `track`'s. ``animate``: also write
+    ``replay.gif`` (`write_animation`, every second frame).
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -296,6 +297,9 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     rows = trajectories.write_mot_csv(csv, tracks.frames, tracks.ids, tracks.pos, tracks.mask)
     plot = out / "top_view.png"
     write_top_view(plot, tracks, odom, title=f"{Path(bag).name}: {estimator}")
+    if animate:
+        write_animation(out / "replay.gif", tracks, laser, odom, every=2, fps=5,
+                        title=f"{Path(bag).name}: {estimator}")
     reports = [r.report for r in (laser, odom, det, pan) if r is not None]
     n_ids = len(np.unique(tracks.ids[tracks.mask])) if tracks.mask.any() else 0
     print(f"{len(tracks.frames)} frames ({tracks.times[-1] - tracks.times[0]:.1f} s) replayed "
@@ -334,4 +338,95 @@ def write_top_view(path, tracks: Tracks, odometry: bags.Odometry | None = None, 
     ax.set_title(title or f"{len(ids)} tracks")
     ax.legend(loc="best", fontsize=8)
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_animation(path, tracks: Tracks, laser: bags.LaserScans,
+                    odometry: bags.Odometry | None = None, *, every: int = 1, fps: int = 10,
+                    trail: int = 20, frames: int | None = None, title: str = "") -> None:
+    """An animated top view of a replay (GIF, `matplotlib.animation.PillowWriter`): each scan's
+    returns, the tracks with their ids and a trail of their last ``trail`` positions, and the
+    user estimate, in the odometry frame (the laser's frame without odometry; the laser is
+    taken at the robot's origin).
+
+    Args:
+      path: output ``.gif``.
+      tracks: `track`'s output; laser: the `bags.LaserScans` it replayed (valid rows).
+      odometry: the odometry it used, or None.
+      every: draw every ``every``-th frame; fps: frames per second of the GIF.
+      frames: only the first ``frames`` frames (default all).
+
+    Example:
+      >>> write_animation("replay.gif", tracks, laser, every=2, frames=300)
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import animation
+
+    if int(every) < 1 or int(trail) < 0:
+        raise ValueError(f"every must be >= 1 and trail >= 0; got {every}, {trail}")
+    rows = np.flatnonzero(np.asarray(laser.valid, bool))
+    T = len(tracks.frames) if frames is None else min(int(frames), len(tracks.frames))
+    if T < 1 or len(rows) < T:
+        raise ValueError(f"laser has {len(rows)} valid scans for {len(tracks.frames)} frames")
+    ranges = np.asarray(laser.ranges)[rows[:T]]
+    mask = np.asarray(laser.mask, bool)[rows[:T]]
+    angles = np.asarray(laser.angles)
+    if odometry is not None:
+        ov = np.asarray(odometry.valid, bool)
+        oi = _align(np.asarray(odometry.times)[ov], np.asarray(tracks.times[:T]), np.inf)
+        pose = np.asarray(odometry.pose)[ov][oi]
+    else:
+        pose = np.zeros((T, 3))
+    c, s = np.cos(pose[:, 2:3] + angles), np.sin(pose[:, 2:3] + angles)
+    pts = np.stack([pose[:, :1] + ranges * c, pose[:, 1:2] + ranges * s], -1)
+    ids_seen = np.unique(tracks.ids[:T][tracks.mask[:T]]) if tracks.mask[:T].any() else []
+    colour = {int(i): plt.get_cmap("tab20")(k % 20) for k, i in enumerate(ids_seen)}
+    lim = pts[mask]
+    fig, ax = plt.subplots(figsize=(6.5, 6))
+    if len(lim):
+        lo, hi = np.percentile(lim, 1, 0) - 0.5, np.percentile(lim, 99, 0) + 0.5
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    scan = ax.scatter([], [], s=2, c="0.4")
+    heads = ax.scatter([], [], s=80, facecolors="none", lw=1.5)
+    user, = ax.plot([], [], "k+", ms=14, mew=2, label="user estimate")
+    trails = []
+    labels = []
+    clock = ax.text(0.02, 0.97, "", transform=ax.transAxes, fontsize=8, va="top")
+    ax.legend(loc="upper right", fontsize=7)
+
+    def draw(k):
+        for artist in trails + labels:
+            artist.remove()
+        trails.clear()
+        labels.clear()
+        scan.set_offsets(pts[k][mask[k]] if mask[k].any() else np.zeros((0, 2)))
+        on = tracks.mask[k]
+        xy = tracks.pos[k][on]
+        heads.set_offsets(xy if len(xy) else np.zeros((0, 2)))
+        heads.set_edgecolors([colour[int(i)] for i in tracks.ids[k][on]])
+        for i, p in zip(tracks.ids[k][on], xy):
+            lo = max(k - int(trail), 0)
+            sel = tracks.mask[lo:k + 1] & (tracks.ids[lo:k + 1] == i)
+            path = tracks.pos[lo:k + 1][sel]
+            trails.append(ax.plot(path[:, 0], path[:, 1], "-", lw=1, color=colour[int(i)])[0])
+            labels.append(ax.annotate(str(int(i)), p, fontsize=7, color=colour[int(i)],
+                                      xytext=(4, 4), textcoords="offset points"))
+        if tracks.user_found[k]:
+            user.set_data([tracks.user[k, 0]], [tracks.user[k, 1]])
+        else:
+            user.set_data([], [])
+        clock.set_text(f"t = {tracks.times[k] - tracks.times[0]:5.1f} s   "
+                       f"{int(on.sum())} tracks")
+        return scan, heads, user, clock
+
+    anim = animation.FuncAnimation(fig, draw, frames=range(0, T, int(every)), blit=False)
+    anim.save(path, writer=animation.PillowWriter(fps=int(fps)))
     plt.close(fig)
