@@ -63,7 +63,9 @@ def geometric(data, params):
 
 
 def learned_scores(model, data):
-    """The learned detector's segments: (mean [T, S, 2], segment mask [T, S], P(leg) [T, S])."""
+    """The learned detector's segments: (mean [T, S, 2], segment mask [T, S], P(leg) [T, S],
+    -1 for segments the detector does not evaluate)."""
+    import jax
     import jax.numpy as jnp
     import numpy as np
 
@@ -75,7 +77,9 @@ def learned_scores(model, data):
         np.asarray(s.ranges, np.float32), jnp.asarray(s.angles, jnp.float32),
         jnp.float32(s.range_max), jnp.float32(model.jump), leg_dataset.DEFAULT_SEGMENTS)
     p = np.asarray(leg_classifier.predict_proba(model, jnp.asarray(X)))
-    p = np.where(mask & (X[..., 0] >= float(model.min_points)), p, -1.0)
+    cand = jax.vmap(leg_classifier.candidates, (None, 0, 0))(model, jnp.asarray(X),
+                                                            jnp.asarray(mask))
+    p = np.where(np.asarray(cand), p, -1.0)
     return mean, mask, p
 
 

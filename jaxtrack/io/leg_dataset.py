@@ -149,6 +149,10 @@ def segment_dataset(data: LabelledScans, *, jump: float = 0.13,
     if not float(match_radius) > 0:
         raise ValueError(f"match_radius must be > 0; got {match_radius}")
     s = data.scans
+    if len(s.times) == 0:
+        F = leg_features.NUM_FEATURES
+        return SegmentSet(np.zeros((0, F)), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                          np.zeros((0, 2)), 0)
     X, mean, mask, dropped = _scan_segments(
         np.asarray(s.ranges, np.float32), jnp.asarray(s.angles, jnp.float32),
         jnp.float32(s.range_max), jnp.float32(jump), int(max_segments))
@@ -309,6 +313,9 @@ def train(positive, negative, *, jump: float = 0.13, n_estimators: int = 48,
     else:
         model, forest = leg_classifier.fit(X, y, oob_score=True, **kw)
         held = np.nan_to_num(forest.oob_decision_function_[:, 1])
+    # Segments the model never evaluates (too few points, too wide) are not legs.
+    held = np.where(np.asarray(leg_classifier.candidates(model, jnp.asarray(X, jnp.float32),
+                                                         jnp.ones(len(y), bool))), held, 0.0)
     decision, precision, recall = best_f1_threshold(held, y)
     model = model._replace(decision=jnp.asarray(decision, jnp.float32))
     report = TrainingReport(tuple(d.name for d in positive + negative), len(y), int(y.sum()),

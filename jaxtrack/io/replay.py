@@ -209,7 +209,8 @@ def _align(src_times, dst_times, tol):
     return np.where(np.min(d, -1) <= tol, best, -1)
 
 
-_detect = jax.jit(legs.detect, static_argnames=("max_segments", "max_people"))
+_detect = jax.jit(legs.detect,
+                  static_argnames=("max_segments", "max_people", "max_candidates"))
 
 
 def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
@@ -217,7 +218,7 @@ def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
     det = _detect(jnp.asarray(ranges), jnp.asarray(angles), cfg.leg_params,
                   max_segments=cfg.max_segments, max_people=cfg.max_people,
                   classifier=leg_classifier.resolve(cfg.detector),
-                  threshold=cfg.leg_threshold)
+                  threshold=cfg.leg_threshold, max_candidates=cfg.max_leg_candidates)
     xy = np.asarray(det.people.xy) + np.asarray(cfg.laser_mount)
     ok = np.asarray(det.people.mask) & (xy[:, 0] > 0)
     rel = (xy[np.argmin(np.where(ok, np.sum(xy**2, -1), np.inf))] if ok.any()

@@ -46,8 +46,8 @@ from jaxtrack.perception import leg_features
 
 Array = jax.Array
 
-__all__ = ["LegClassifier", "predict_proba", "is_leg", "from_sklearn", "fit", "save", "load",
-           "default", "resolve", "DEFAULT_MODEL"]
+__all__ = ["LegClassifier", "predict_proba", "candidates", "is_leg", "from_sklearn", "fit",
+           "save", "load", "metadata", "default", "resolve", "DEFAULT_MODEL"]
 
 DEFAULT_MODEL = "leg_forest.npz"
 _FORMAT = 1
@@ -66,6 +66,9 @@ class LegClassifier(NamedTuple):
       decision: scalar, the probability at or above which a segment is a leg (0.5).
       jump: scalar, the segmentation break distance the model was trained with (m).
       min_points: scalar, segments with fewer points are never legs.
+      max_width: scalar, segments wider than this are never legs (m; `train` sets 1.5 times
+        the widest leg segment of its training set). With `min_points`, the cheap test that
+        decides which segments the forest evaluates at all.
     """
 
     feature: Array
@@ -77,6 +80,7 @@ class LegClassifier(NamedTuple):
     decision: Array
     jump: Array
     min_points: Array
+    max_width: Array
 
 
 def predict_proba(model: LegClassifier, X: Array) -> Array:
@@ -103,12 +107,39 @@ def predict_proba(model: LegClassifier, X: Array) -> Array:
     return _forest(model, flat).reshape(lead)
 
 
-def is_leg(model: LegClassifier, X: Array, mask: Array) -> tuple[Array, Array]:
-    """Leg decisions: ``(legs [S] bools, probabilities [S])`` for features X [S, F] of the
-    segments in ``mask`` [S] (point count at least ``min_points``, probability at least
-    ``decision``)."""
-    p = jnp.where(mask, predict_proba(model, X), 0.0)
-    return mask & (X[:, 0] >= model.min_points) & (p >= model.decision), p
+def candidates(model: LegClassifier, X: Array, mask: Array) -> Array:
+    """[S] bools: the segments in ``mask`` that may be legs at all (at least ``min_points``
+    points, at most ``max_width`` wide); the forest decides among them."""
+    return mask & (X[:, 0] >= model.min_points) & (X[:, 1] <= model.max_width)
+
+
+def is_leg(model: LegClassifier, X: Array, mask: Array, *, capacity: int | None = None,
+           threshold=None) -> tuple[Array, Array, Array]:
+    """Leg decisions for the features X [S, F] of the segments in ``mask`` [S].
+
+    The forest runs on the `candidates` only, compacted into ``capacity`` rows (static; None:
+    all S rows): a scan has a few dozen segments, of which a handful are leg-sized, and the
+    forest is most of the detector's cost. Candidates beyond the capacity (in beam order) are
+    not legs, and counted.
+
+    Returns:
+      ``(legs [S] bools, probabilities [S] (0 for non-candidates), dropped scalar int32)``;
+      a leg is a candidate with probability at least ``threshold`` (default ``decision``).
+    """
+    S = X.shape[0]
+    cand = candidates(model, X, mask)
+    threshold = model.decision if threshold is None else threshold
+    if capacity is None or int(capacity) >= S:
+        p = jnp.where(cand, predict_proba(model, X), 0.0)
+        dropped = jnp.zeros((), jnp.int32)
+    else:
+        K = int(capacity)
+        rows = jnp.nonzero(cand, size=K, fill_value=S)[0]
+        pk = predict_proba(model, X[jnp.minimum(rows, S - 1)])
+        p = jnp.zeros(S, pk.dtype).at[rows].set(pk, mode="drop")
+        dropped = jnp.maximum(jnp.sum(cand) - K, 0).astype(jnp.int32)
+        cand = cand & (jnp.cumsum(cand) <= K)
+    return cand & (p >= threshold), p, dropped
 
 
 def _forest(model: LegClassifier, X):
@@ -132,7 +163,7 @@ def _forest(model: LegClassifier, X):
 
 
 def from_sklearn(forest, *, decision: float = 0.5, jump: float = 0.13,
-                 min_points: int = 3) -> LegClassifier:
+                 min_points: int = 3, max_width: float = np.inf) -> LegClassifier:
     """Convert a fitted scikit-learn ``RandomForestClassifier`` (or a single
     ``DecisionTreeClassifier``) with classes {0, 1} (1 = leg) into a `LegClassifier`.
 
@@ -168,7 +199,8 @@ def from_sklearn(forest, *, decision: float = 0.5, jump: float = 0.13,
     return LegClassifier(jnp.asarray(feature), jnp.asarray(threshold), jnp.asarray(left),
                          jnp.asarray(right), jnp.asarray(value), jnp.arange(D, dtype=jnp.int32),
                          jnp.asarray(decision, jnp.float32), jnp.asarray(jump, jnp.float32),
-                         jnp.asarray(float(min_points), jnp.float32))
+                         jnp.asarray(float(min_points), jnp.float32),
+                         jnp.asarray(max_width, jnp.float32))
 
 
 def _float32_floor(t: np.ndarray) -> np.ndarray:
@@ -182,7 +214,7 @@ def _float32_floor(t: np.ndarray) -> np.ndarray:
 
 def fit(X, y, *, n_estimators: int = 32, max_depth: int = 10, min_samples_leaf: int = 2,
         seed: int = 0, decision: float = 0.5, jump: float = 0.13, min_points: int = 3,
-        class_weight=None, oob_score: bool = False):
+        max_width: float | None = None, class_weight=None, oob_score: bool = False):
     """Train a random forest on segment features (needs scikit-learn: ``pip install
     jaxtrack[train]``).
 
@@ -190,7 +222,8 @@ def fit(X, y, *, n_estimators: int = 32, max_depth: int = 10, min_samples_leaf: 
       X: [M, NUM_FEATURES] features; y: [M] labels, 1 = leg, 0 = not a leg.
       n_estimators, max_depth, min_samples_leaf, class_weight, oob_score: the forest's
         (scikit-learn's meanings); seed: its random_state.
-      decision, jump, min_points: stored in the model (see `LegClassifier`).
+      decision, jump, min_points, max_width: stored in the model (see `LegClassifier`;
+        ``max_width`` None: 1.5 times the widest leg in X).
 
     Returns:
       ``(LegClassifier, the fitted sklearn forest)``.
@@ -215,17 +248,22 @@ def fit(X, y, *, n_estimators: int = 32, max_depth: int = 10, min_samples_leaf: 
                                     class_weight=class_weight, oob_score=bool(oob_score),
                                     random_state=int(seed), n_jobs=1)
     forest.fit(X, y.astype(int))
-    return from_sklearn(forest, decision=decision, jump=jump, min_points=min_points), forest
+    if max_width is None:
+        max_width = 1.5 * float(np.max(X[y == 1, 1]))
+    return from_sklearn(forest, decision=decision, jump=jump, min_points=min_points,
+                        max_width=max_width), forest
 
 
 def save(path, model: LegClassifier, **metadata) -> Path:
-    """Write a model to ``.npz`` (with the feature names and any string / number metadata, e.g.
-    the bags it was trained on)."""
+    """Write a model to ``path`` exactly (npz format; with the feature names and any string /
+    number metadata, e.g. the bags it was trained on). Returns the path."""
     path = Path(path)
     meta = {f"meta_{k}": np.asarray(v) for k, v in metadata.items()}
-    np.savez_compressed(path, format=np.int32(_FORMAT),
-                        feature_names=np.asarray(leg_features.FEATURE_NAMES),
-                        **{k: np.asarray(v) for k, v in model._asdict().items()}, **meta)
+    # Through a file object: numpy would append ".npz" to a path without it.
+    with open(path, "wb") as f:
+        np.savez_compressed(f, format=np.int32(_FORMAT),
+                            feature_names=np.asarray(leg_features.FEATURE_NAMES),
+                            **{k: np.asarray(v) for k, v in model._asdict().items()}, **meta)
     return path
 
 

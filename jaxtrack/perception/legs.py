@@ -166,8 +166,10 @@ class Detections(NamedTuple):
       segments: `Segments`; features: `SegmentFeatures`.
       points: [B, 2] the scan's return points (sensor frame, 0 where invalid); valid: [B]
         returns within ``(min_range, max_range)``, e.g. obstacle points for a safety layer.
-      scores: [S] leg probability of each segment with a learned classifier; 1.0 / 0.0 for
-        the geometric candidates.
+      scores: [S] leg probability of each segment with a learned classifier (0 for segments
+        it did not evaluate); 1.0 / 0.0 for the geometric candidates.
+      candidates_dropped: scalar int32, leg-sized segments beyond ``max_candidates`` (learned
+        detector), not evaluated.
     """
 
     people: People
@@ -178,6 +180,7 @@ class Detections(NamedTuple):
     points: Array
     valid: Array
     scores: Array
+    candidates_dropped: Array
 
 
 # ---------------------------------------------------------------------------------------------
@@ -309,7 +312,7 @@ def pair_legs(legs_xy: Array, legs_mask: Array, params: LegParams = LegParams(),
 def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
            max_segments: int = 64, max_people: int = 16,
            prev_legs: tuple[Array, Array] | None = None, classifier=None,
-           threshold=None) -> Detections:
+           threshold=None, max_candidates: int | None = 16) -> Detections:
     """The whole leg detector on one scan: `segment` -> `features` -> `leg_candidates` ->
     `pair_legs`. Everything in the sensor frame.
 
@@ -327,6 +330,9 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
       classifier: optional learned leg classifier (a pytree; may be traced).
       threshold: with a classifier, the leg probability from which a segment is a leg
         (default the classifier's ``decision``).
+      max_candidates: with a classifier, the static number of leg-sized segments it
+        evaluates per scan (`leg_classifier.is_leg`'s capacity; None: all S). Further ones
+        are not legs and are counted in ``Detections.candidates_dropped``.
 
     Returns:
       `Detections` (people, legs_xy [S, 2], legs_mask [S], segments, features, points [B, 2],
@@ -345,7 +351,8 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         dtype = jnp.result_type(ranges, angles, float)
         det = detect(jnp.full((1,), jnp.inf, dtype), jnp.zeros((1,), dtype), params,
                      max_segments=max_segments, max_people=max_people, prev_legs=prev_legs,
-                     classifier=classifier, threshold=threshold)
+                     classifier=classifier, threshold=threshold,
+                     max_candidates=max_candidates)
         return det._replace(points=det.points[:0], valid=det.valid[:0],
                             segments=det.segments._replace(labels=det.segments.labels[:0]))
     xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
@@ -360,12 +367,14 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
         # Imported here: the feature and classifier modules build on this one.
         from jaxtrack.perception import leg_classifier, leg_features
         X = leg_features.segment_features(xy, valid, segs)
-        if threshold is not None:
-            classifier = classifier._replace(decision=jnp.asarray(threshold, jnp.float32))
-        legs, scores = leg_classifier.is_leg(classifier, X, segs.mask)
+        legs, scores, dropped = leg_classifier.is_leg(classifier, X, segs.mask,
+                                                      capacity=max_candidates,
+                                                      threshold=threshold)
         scores = scores.astype(xy.dtype)
     people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)
-    return Detections(people, feats.position, legs, segs, feats, xy, valid, scores)
+    if classifier is None:
+        dropped = jnp.zeros((), jnp.int32)
+    return Detections(people, feats.position, legs, segs, feats, xy, valid, scores, dropped)
 
 
 def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(), *,

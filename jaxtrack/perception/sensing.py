@@ -68,6 +68,8 @@ class SensingConfig:
         Measured on the leg_tracker demo bag (a different scanner from the training bags): 0.8
         legs per scan at 0.235 and 2.7 at 0.05, and with the ``gnn`` estimator 13 track ids
         (20 with the geometric detector, which also tracks furniture).
+      max_leg_candidates: leg-sized segments per scan the learned classifier evaluates
+        (`legs.detect`'s ``max_candidates``).
     """
 
     leg_params: legs.LegParams = legs.LegParams()
@@ -78,11 +80,14 @@ class SensingConfig:
     wall_distance: float = 0.25
     detector: str = "geometric"
     leg_threshold: float = 0.05
+    max_leg_candidates: int = 16
 
     def __post_init__(self):
         if self.detector not in ("geometric", "learned") and not Path(self.detector).is_file():
             raise ValueError(f"detector must be 'geometric', 'learned' or a model file; got "
                              f"{self.detector!r}")
+        if self.max_leg_candidates < 1:
+            raise ValueError(f"max_leg_candidates must be >= 1; got {self.max_leg_candidates}")
         if not 0.0 <= self.leg_threshold <= 1.0:
             raise ValueError(f"leg_threshold must be in [0, 1]; got {self.leg_threshold}")
         if self.max_segments < 1 or self.max_people < 1:
@@ -221,7 +226,8 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
                       max_people=config.max_people,
                       prev_legs=(geometry.to_frame(in_odom, state.legs_xy), state.legs_mask),
                       classifier=leg_classifier.resolve(config.detector),
-                      threshold=config.leg_threshold)
+                      threshold=config.leg_threshold,
+                      max_candidates=config.max_leg_candidates)
     people = det.people.xy.astype(dtype)
     laser_xy = geometry.from_frame(in_odom, people)
     laser_map = geometry.from_frame(sensor_pose(map_pose, mount), people)
