@@ -15,8 +15,9 @@ Every case starts from a valid call of one public function and applies one mutat
 Outcomes: ``clear`` (ValueError / TypeError whose message names the argument), ``handled``
 (finite result), ``garbage`` (a non-finite result where a finite one was due) and ``obscure``
 (any other exception, or an error not naming the argument). The property is that garbage and
-obscure never happen. ``JAXTRACK_FUZZ_EXAMPLES`` raises the number of examples (default 60 in
-CI); ``python -m tests.test_fuzz`` runs every case once and prints the table per class.
+obscure never happen. Every case runs in CI, one test each; ``python -m tests.test_fuzz`` runs
+them all and prints the table per class. A hypothesis test draws further mutations of one
+filter's measurements; ``JAXTRACK_FUZZ_EXAMPLES`` raises its number of examples (default 60).
 """
 
 from __future__ import annotations
@@ -162,6 +163,40 @@ def legs_detect(ranges=np.full(90, 3.0)):
     return (det.people.xy,)
 
 
+def leg_feats(ranges=np.full(90, 3.0)):
+    from jaxtrack.perception import leg_features, legs
+
+    angles = np.linspace(-1.5, 1.5, ranges.shape[0])
+    return (leg_features.compute(ranges, angles, legs.segment(ranges, angles, 5.6)),)
+
+
+def leg_proba(X=np.abs(RNG.normal(size=(5, 14)))):
+    from jaxtrack.perception import leg_classifier
+
+    return (leg_classifier.predict_proba(leg_classifier.default(), X),)
+
+
+def leg_match(det_xy=RNG.normal(size=(4, 3, 2)), labels=RNG.normal(size=(4, 2, 2)),
+              radius=0.15):
+    from jaxtrack.io import leg_dataset
+
+    return leg_dataset.match_counts(det_xy, np.ones(det_xy.shape[:2], bool), labels,
+                                    np.ones(labels.shape[:2], bool), radius)
+
+
+def leg_threshold(scores=RNG.uniform(size=20), y=np.arange(20) % 2):
+    from jaxtrack.io import leg_dataset
+
+    return tuple(x for x in leg_dataset.best_f1_threshold(scores, y) if np.isfinite(x))
+
+
+def sensing_config(leg_threshold=0.05):
+    from jaxtrack.perception import sensing
+
+    return (np.asarray(sensing.SensingConfig(detector="learned",
+                                             leg_threshold=leg_threshold).leg_threshold),)
+
+
 def _nan(a):
     a = np.array(a, dtype=np.float64)
     a.flat[0] = np.nan
@@ -192,6 +227,13 @@ CASES = [
     ("empty", nn_update, {"zs": np.zeros((0, 2)), "col_for_row": np.full(3, -1)}, "zs", "ok"),
     ("empty", tracker_step, {"positions": np.zeros((0, 2)), "capacity": 0}, "positions", "ok"),
     ("empty", legs_detect, {"ranges": np.zeros(0)}, "ranges", "ok"),
+    ("empty", leg_feats, {"ranges": np.zeros(0)}, "ranges", "ok"),
+    ("empty", leg_proba, {"X": np.zeros((0, 14))}, "X", "ok"),
+    ("empty", leg_match, {"det_xy": np.zeros((4, 0, 2))}, "det_xy", "ok"),
+    ("empty", leg_match, {"labels": np.zeros((4, 0, 2))}, "labels", "ok"),
+    ("empty", leg_match, {"det_xy": np.zeros((0, 3, 2)), "labels": np.zeros((0, 2, 2))},
+     "det_xy", "ok"),
+    ("empty", leg_threshold, {"scores": np.zeros(0), "y": np.zeros(0)}, "scores", "ok"),
     # nan
     ("nan", kf, {"F": _nan(F)}, "F", "error"),
     ("nan", kf, {"H": _nan(H)}, "H", "error"),
@@ -218,6 +260,10 @@ CASES = [
     ("nan", gospa, {"p": np.nan}, "p", "error"),
     ("nan", tracker_step, {"positions": _nan(DETS)}, "positions", "either"),
     ("nan", legs_detect, {"ranges": _nan(np.full(90, 3.0))}, "ranges", "either"),
+    ("nan", leg_feats, {"ranges": _nan(np.full(90, 3.0))}, "ranges", "either"),
+    ("nan", leg_proba, {"X": _nan(np.ones((5, 14)))}, "X", "either"),
+    ("nan", leg_match, {"radius": np.nan}, "radius", "error"),
+    ("nan", sensing_config, {"leg_threshold": np.nan}, "leg_threshold", "error"),
     # covariance
     ("covariance", kf, {"Q": -Q}, "Q", "error"),
     ("covariance", kf, {"R": np.array([[0.1, 0.05], [0.0, 0.1]])}, "R", "error"),
@@ -240,6 +286,9 @@ CASES = [
     ("scale", gospa, {"p": 0.5}, "p", "error"),
     ("scale", gate, {"prob": 1.5}, "prob", "error"),
     ("scale", legs_detect, {"ranges": np.full(90, -3.0)}, "ranges", "either"),
+    ("scale", leg_match, {"radius": -0.15}, "radius", "error"),
+    ("scale", sensing_config, {"leg_threshold": 1.5}, "leg_threshold", "error"),
+    ("scale", leg_proba, {"X": np.ones((5, 3))}, "X", "error"),
     # dtype
     ("dtype", kf, {"init": Gaussian(np.zeros(4, int), np.eye(4, dtype=int))}, "init", "ok"),
     ("dtype", kf, {"init": Gaussian(np.zeros(4, np.float32), np.eye(4, dtype=np.float32))},
@@ -258,6 +307,9 @@ CASES = [
      "state", "ok"),
     ("dtype", tracker_step, {"positions": DETS.astype(np.float32)}, "positions", "ok"),
     ("dtype", legs_detect, {"ranges": np.full(90, 3, int)}, "ranges", "either"),
+    ("dtype", leg_proba, {"X": np.ones((5, 14), int)}, "X", "ok"),
+    ("dtype", leg_proba, {"X": np.ones((5, 14), np.float16)}, "X", "either"),
+    ("dtype", leg_feats, {"ranges": np.full(90, 3.0, np.float32)}, "ranges", "ok"),
 ]
 
 
@@ -279,13 +331,34 @@ def classify(case) -> str:
     return "handled" if finite else "garbage"
 
 
-@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
-          suppress_health_check=list(HealthCheck))
-@given(st.sampled_from(range(len(CASES))))
+@pytest.mark.parametrize("i", range(len(CASES)),
+                         ids=[f"{c[0]}-{c[1].__name__}-{c[3]}-{k}" for k, c in enumerate(CASES)])
 def test_bad_input_is_a_clear_error_and_edge_cases_are_defined(i):
     case = CASES[i]
     outcome = classify(case)
     assert outcome in ("clear", "handled"), (case[0], case[1].__name__, case[3], outcome)
+
+
+@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
+          suppress_health_check=list(HealthCheck))
+@given(st.sampled_from(["empty", "nan", "inf", "negative", "int", "float32"]),
+       st.integers(0, 4))
+def test_random_mutations_of_the_kalman_filter_measurements(kind, row):
+    # Drawn mutations of one argument of one filter run: every one is a valid input (missing
+    # or empty measurements are masked, dtypes promoted), so every result must be finite.
+    zs = ZS.copy()
+    if kind == "empty":
+        zs = zs[:row]
+    elif kind in ("nan", "inf"):
+        zs[row] = np.nan if kind == "nan" else np.inf
+    elif kind == "negative":
+        zs = -1e6 * np.abs(zs)
+    elif kind == "int":
+        zs = np.round(zs).astype(int)
+    else:
+        zs = zs.astype(np.float32)
+    means, covs, ll = kf(zs=zs)
+    assert np.all(np.isfinite(means)) and np.all(np.isfinite(covs)) and np.isfinite(ll)
 
 
 def test_every_class_is_probed():

@@ -327,6 +327,10 @@ def best_f1_threshold(scores, y):
     """The threshold on ``scores`` of best F1 for labels ``y`` (1 = leg), and the precision and
     recall there: ``(threshold, precision, recall)``."""
     scores, y = np.asarray(scores, np.float64), np.asarray(y)
+    if scores.shape != y.shape or scores.ndim != 1:
+        raise ValueError(f"scores and y must be [M] each; got {scores.shape}, {y.shape}")
+    if scores.size == 0:     # nothing to detect: no threshold selects anything
+        return float("inf"), 0.0, 0.0
     order = np.argsort(-scores, kind="stable")
     s, t = scores[order], (y[order] == 1)
     tp = np.cumsum(t)

@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from jaxtrack import _checks
 from jaxtrack.perception import legs as legs_mod
 
 Array = jax.Array
@@ -82,8 +83,15 @@ def compute(ranges: Array, angles: Array, segments: legs_mod.Segments, max_range
       >>> X = compute(ranges, angles, segs, 5.6)          # [S, 14]
     """
     legs_mod._check_scan(ranges, angles)
-    xy, valid = legs_mod._points(jnp.asarray(ranges), jnp.asarray(angles), min_range,
-                                 max_range)
+    if _checks.shape_of(ranges)[0] == 0:        # no beam, no segment
+        dtype = jnp.result_type(ranges, angles, float)
+        return jnp.zeros((segments.first.shape[0], NUM_FEATURES), dtype)
+    return _compute(jnp.asarray(ranges), jnp.asarray(angles), segments, min_range, max_range)
+
+
+@jax.jit
+def _compute(ranges, angles, segments, min_range, max_range):
+    xy, valid = legs_mod._points(ranges, angles, min_range, max_range)
     return segment_features(xy, valid, segments)
 
 

@@ -32,6 +32,7 @@ is missed; the motion cue needs legs associated over frames, here by nearest nei
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -211,8 +212,19 @@ def segment(ranges: Array, angles: Array, max_range, *, jump=0.1, min_range=0.0,
     _check_scan(ranges, angles)
     if int(max_segments) < 1:
         raise ValueError(f"max_segments must be >= 1; got {max_segments}")
-    xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), min_range, max_range)
-    return _segment(xy, valid, jump, int(max_segments))
+    if _checks.shape_of(ranges)[0] == 0:   # no beam: one beam without a return, then none
+        dtype = jnp.result_type(ranges, angles, float)
+        segs = segment(jnp.full((1,), jnp.inf, dtype), jnp.zeros((1,), dtype), max_range,
+                       jump=jump, min_range=min_range, max_segments=max_segments)
+        return segs._replace(labels=segs.labels[:0])
+    return _segment_scan(jnp.asarray(ranges), jnp.asarray(angles), min_range, max_range, jump,
+                         int(max_segments))
+
+
+@functools.partial(jax.jit, static_argnums=5)
+def _segment_scan(ranges, angles, min_range, max_range, jump, S):
+    xy, valid = _points(ranges, angles, min_range, max_range)
+    return _segment(xy, valid, jump, S)
 
 
 def features(ranges: Array, angles: Array, segments: Segments, max_range=5.6, min_range=0.0
@@ -355,14 +367,24 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
                      max_candidates=max_candidates)
         return det._replace(points=det.points[:0], valid=det.valid[:0],
                             segments=det.segments._replace(labels=det.segments.labels[:0]))
-    xy, valid = _points(jnp.asarray(ranges), jnp.asarray(angles), params.min_range,
-                        params.max_range)
+    return _detect(jnp.asarray(ranges), jnp.asarray(angles), params, prev_legs, classifier,
+                   threshold, max_segments=int(max_segments), max_people=int(max_people),
+                   max_candidates=None if max_candidates is None else int(max_candidates))
+
+
+@functools.partial(jax.jit, static_argnames=("max_segments", "max_people", "max_candidates"))
+def _detect(ranges, angles, params, prev_legs, classifier, threshold, *, max_segments,
+            max_people, max_candidates):
+    """`detect` after its checks, compiled as one program: called outside ``jit``, the
+    detector is one dispatch instead of some hundred (and compiles once per shape)."""
+    xy, valid = _points(ranges, angles, params.min_range, params.max_range)
     jump = params.jump if classifier is None else classifier.jump
-    segs = _segment(xy, valid, jump, int(max_segments))
+    segs = _segment(xy, valid, jump, max_segments)
     feats = _features(xy, segs)
     if classifier is None:
         legs = leg_candidates(feats, params)
         scores = legs.astype(xy.dtype)
+        dropped = jnp.zeros((), jnp.int32)
     else:
         # Imported here: the feature and classifier modules build on this one.
         from jaxtrack.perception import leg_classifier, leg_features
@@ -372,8 +394,6 @@ def detect(ranges: Array, angles: Array, params: LegParams = LegParams(), *,
                                                       threshold=threshold)
         scores = scores.astype(xy.dtype)
     people = pair_legs(feats.position, legs, params, max_people=max_people, prev_legs=prev_legs)
-    if classifier is None:
-        dropped = jnp.zeros((), jnp.int32)
     return Detections(people, feats.position, legs, segs, feats, xy, valid, scores, dropped)
 
 
