@@ -20,6 +20,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import sys
 import time
@@ -92,6 +93,9 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         limits from the scans (``range_min`` / ``range_max`` of the messages).
       detector: ``"learned"`` (the shipped leg classifier, trained on real scans),
         ``"geometric"`` or a model file of ``jaxtrack train-legs`` (`sensing.SensingConfig`).
+        With a learned detector, a leg-tracked estimator named by string (``"pf+legs"``,
+        ``"jpda+legs"``) starts leg tracks only on legs at the classifier's decision
+        threshold (`leg_tracker.LegTrackerConfig.birth_confidence`).
       static_xy: [F, 2] known leg-like fixed objects (table and chair legs) in the odometry
         frame, from a map: laser people within ``static_radius`` of one are dropped (furniture
         legs 0.3-0.5 m apart do look like a person's legs).
@@ -112,6 +116,12 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         user.build(estimator)  # a clear error for an unknown name
         if detections is None:
             config = user.with_sensors(config, "laser")
+        if isinstance(config, user.LegTrackedConfig) and detector != "geometric":
+            # Leg tracks start on the classifier's confident legs (its decision threshold)
+            # and are kept by the candidates above the sensing threshold.
+            decision = float(leg_classifier.resolve(detector).decision)
+            config = dataclasses.replace(config, legs=dataclasses.replace(
+                config.legs, birth_confidence=decision))
     else:
         config = estimator
     est = user.build(config)

@@ -150,6 +150,8 @@ class Sensed(NamedTuple):
       legs_xy: [S, 2] the scan's leg candidates (odometry frame), the input of a leg tracker
         (`jaxtrack.tracking.leg_tracker`); legs_mask: [S] (the map filter applied); None where
         not given.
+      legs_score: [S] the leg detector's confidence in each candidate (the learned
+        classifier's probability; 1 for the geometric detector's), or None (all 1).
     """
 
     laser_xy: Array
@@ -167,6 +169,7 @@ class Sensed(NamedTuple):
     camera_pan: Array | None = None
     legs_xy: Array | None = None
     legs_mask: Array | None = None
+    legs_score: Array | None = None
 
 
 def empty_map(dtype=jnp.float32) -> StaticMap:
@@ -241,7 +244,8 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
     sensed = Sensed(laser_xy, laser_mask, laser_map,
                     geometry.from_frame(odom, rgbd_xy.astype(dtype)), rgbd_mask, colour, odom,
                     odometry.increment[0] / period, odometry.increment[2] / period, returns,
-                    det.valid, legs_xy=legs_odom, legs_mask=legs_mask)
+                    det.valid, legs_xy=legs_odom, legs_mask=legs_mask,
+                    legs_score=det.scores.astype(dtype))
     new = SensingState(legs_odom, det.legs_mask)
     return new, sensed
 

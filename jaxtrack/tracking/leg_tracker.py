@@ -81,6 +81,12 @@ class LegTrackerConfig:
       max_motion_angle: two moving legs whose velocities differ in direction by more than this
         (rad) are not one person.
       single_legs: an unpaired leg track is a person.
+      birth_confidence: only candidates whose detector confidence (``legs_conf`` of `step`)
+        reaches this start leg tracks; any candidate updates a track. With the learned leg
+        detector (`jaxtrack.perception.leg_classifier`), its best-F1 decision here and a lower
+        candidate threshold (`sensing.SensingConfig.leg_threshold`) make the classifier's
+        confidence initiate tracks and lower-confidence legs keep them, as the joint leg
+        tracker of Leigh et al. (ICRA 2015) does. 0 (default): every candidate.
     """
 
     capacity: int = 16
@@ -100,6 +106,7 @@ class LegTrackerConfig:
     min_speed: float = 0.3
     max_motion_angle: float = math.pi / 2
     single_legs: bool = True
+    birth_confidence: float = 0.0
 
     def __post_init__(self):
         if self.capacity < 1 or self.max_candidates < 1:
@@ -115,6 +122,9 @@ class LegTrackerConfig:
                              "must be >= 0")
         if len(self.laser_xy) != 2:
             raise ValueError(f"laser_xy must be (x, y); got {self.laser_xy!r}")
+        if not 0.0 <= self.birth_confidence <= 1.0:
+            raise ValueError(f"birth_confidence must be in [0, 1]; got "
+                             f"{self.birth_confidence}")
         # The tracker configuration validates the confirmation counts.
         self.tracker
 
@@ -131,6 +141,7 @@ class LegTrackerConfig:
         """The leg tracks' `tracker.TrackerParams` for a scan period ``dt`` (s)."""
         return tracker.TrackerParams.create(self.tracker, dt=dt, q=self.q, r_std=(self.r_std,),
                                             init_speed_std=1.0, gate_prob=self.gate_prob,
+                                            birth_confidence=self.birth_confidence,
                                             dtype=dtype)
 
 
@@ -173,7 +184,8 @@ def occluded(points: Array, returns_xy: Array, returns_mask: Array, origin: Arra
 
 def step(config: LegTrackerConfig, state: LegTrackerState, legs_xy: Array, legs_mask: Array,
          returns_xy: Array, returns_mask: Array, robot_pose: Array, *, dt,
-         max_people: int = 8) -> tuple[LegTrackerState, legs_mod.People]:
+         max_people: int = 8, legs_conf: Array | None = None
+         ) -> tuple[LegTrackerState, legs_mod.People]:
     """One scan (module docstring).
 
     Args:
@@ -184,6 +196,8 @@ def step(config: LegTrackerConfig, state: LegTrackerState, legs_xy: Array, legs_
       robot_pose: [3] the robot's pose in the odometry frame.
       dt: scan period (s).
       max_people: static capacity P of the people.
+      legs_conf: [S] detector confidence of each candidate (`legs.Detections.scores`), or
+        None (all 1); see ``birth_confidence``.
 
     Returns:
       ``(state, people)``: `legs.People` in the odometry frame, whose ``legs`` are leg track
@@ -194,6 +208,8 @@ def step(config: LegTrackerConfig, state: LegTrackerState, legs_xy: Array, legs_
     _checks.check_shape("returns_xy", returns_xy, (None, 2), "[B, 2] laser returns")
     _checks.check_shape("returns_mask", returns_mask, (_checks.shape_of(returns_xy)[0],))
     _checks.check_shape("robot_pose", robot_pose, (3,))
+    if legs_conf is not None:
+        _checks.check_shape("legs_conf", legs_conf, (_checks.shape_of(legs_xy)[0],))
     if int(max_people) < 1:
         raise ValueError(f"max_people must be >= 1; got {max_people}")
     dtype = state.tracks.mean.dtype
@@ -201,12 +217,14 @@ def step(config: LegTrackerConfig, state: LegTrackerState, legs_xy: Array, legs_
     pose = jnp.asarray(robot_pose, dtype)
     xy = jnp.asarray(legs_xy, dtype)
     mask = jnp.asarray(legs_mask, bool)
+    conf = (jnp.ones(xy.shape[0], dtype) if legs_conf is None
+            else jnp.asarray(legs_conf, dtype))
     if xy.shape[0] > config.max_candidates:
         d2 = jnp.where(mask, jnp.sum((xy - pose[:2]) ** 2, -1), jnp.inf)
         keep = jnp.argsort(d2)[:config.max_candidates]
-        xy, mask = xy[keep], mask[keep]
+        xy, mask, conf = xy[keep], mask[keep], conf[keep]
     S = xy.shape[0]
-    det = tracker.Detections(xy, mask, jnp.zeros(S, jnp.int32), jnp.ones(S, dtype),
+    det = tracker.Detections(xy, mask, jnp.zeros(S, jnp.int32), conf,
                              jnp.zeros((S, 0), dtype))
     tr = state.tracks
     predicted = tracker.predict(tr, params)

@@ -689,7 +689,8 @@ def leg_tracked(config: LegTrackedConfig = LegTrackedConfig()) -> Estimator:
                              "(Sensed.legs_xy, Sensed.legs_mask)")
         legs, people = leg_tracker.step(config.legs, state.legs, z.legs_xy, z.legs_mask,
                                         z.returns_xy, z.returns_mask, z.odom_pose,
-                                        dt=config.period, max_people=z.laser_xy.shape[0])
+                                        dt=config.period, max_people=z.laser_xy.shape[0],
+                                        legs_conf=z.legs_score)
         z = z._replace(laser_xy=people.xy.astype(z.laser_xy.dtype), laser_mask=people.mask)
         inner_state, est = inner.update(key, state.inner, z, params)
         return LegTrackedState(inner_state, legs), est

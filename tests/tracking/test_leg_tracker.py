@@ -251,3 +251,46 @@ def test_a_nan_candidate_is_ignored():
                               jnp.zeros(1, bool), jnp.zeros(3), dt=DT, max_people=P)
     assert np.all(np.isfinite(np.asarray(state.tracks.mean)))
     np.testing.assert_allclose(people.xy, clean[0].xy, atol=1e-6)
+
+
+def test_confident_legs_start_tracks_and_less_confident_ones_keep_them():
+    # The classifier's confidence initiates leg tracks; any candidate updates them.
+    cfg = leg_tracker.LegTrackerConfig(birth_confidence=0.3)
+    state = leg_tracker.init(cfg)
+    pose = jnp.zeros(3)
+    returns, rmask = jnp.zeros((4, 2)), jnp.zeros(4, bool)
+    legs_xy = jnp.asarray([[2.0, 0.0], [2.0, 1.0]], jnp.float32)
+    mask = jnp.ones(2, bool)
+
+    def step(state, xy, conf):
+        return _step(cfg, state, xy, mask, returns, rmask, pose, dt=DT, max_people=P,
+                     legs_conf=jnp.asarray(conf, jnp.float32))
+
+    # Leg 0 is confident in the first scans, leg 1 never is: only leg 0 gets a track.
+    for t in range(3):
+        state, _ = step(state, legs_xy + jnp.asarray([0.02 * t, 0.0]), [0.9, 0.1])
+    tr = state.tracks
+    live = np.asarray(tr.status) != tracker.FREE
+    assert live.sum() == 1
+    assert np.linalg.norm(np.asarray(tr.mean)[live][0, :2] - [2.04, 0.0]) < 0.05
+    first = _ids(state)
+    assert len(first) == 1
+    # Then both score 0.1: leg 0's track is kept (updated, confirmed, same id), leg 1 still
+    # starts none.
+    for t in range(3, 8):
+        state, people = step(state, legs_xy + jnp.asarray([0.02 * t, 0.0]), [0.1, 0.1])
+    assert _ids(state) == first
+    tr = state.tracks
+    live = np.asarray(tr.status) != tracker.FREE
+    assert live.sum() == 1 and int(np.asarray(tr.misses)[live][0]) == 0
+    np.testing.assert_allclose(np.asarray(tr.mean)[live][0, :2], [2.14, 0.0], atol=0.03)
+    # The same scans without confidences (all 1) start two tracks.
+    plain = leg_tracker.init(cfg)
+    for t in range(3):
+        plain, _ = _step(cfg, plain, legs_xy, mask, returns, rmask, pose, dt=DT, max_people=P)
+    assert int(np.sum(np.asarray(plain.tracks.status) != tracker.FREE)) == 2
+    with pytest.raises(ValueError, match="birth_confidence"):
+        leg_tracker.LegTrackerConfig(birth_confidence=1.5)
+    with pytest.raises(ValueError, match="legs_conf"):
+        leg_tracker.step(cfg, state, legs_xy, mask, returns, rmask, pose, dt=DT,
+                         legs_conf=jnp.ones(3))
