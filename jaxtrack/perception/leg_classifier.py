@@ -143,27 +143,21 @@ def is_leg(model: LegClassifier, X: Array, mask: Array, *, capacity: int | None 
 
 
 def _forest(model: LegClassifier, X):
-    """[M, F] float32 -> [M] mean leaf value.
+    """[M, F] float32 -> [M] mean leaf value. (Packing each node's split into one int32
+    record, to gather it once per level, measured 10 % slower on XLA:CPU than these five
+    gathers.)"""
+    rows = jnp.arange(X.shape[0])
 
-    Each node's split (feature, children, float32 threshold bit-cast to int32) is one row of
-    an int32 record, so a level of all T trees for all M samples is one gather of the records
-    and one of the features (XLA:CPU runs many small gathers much slower than a few wide ones).
-    """
-    T, N = model.feature.shape
-    M = X.shape[0]
-    thr_bits = lax.bitcast_convert_type(model.threshold.astype(jnp.float32), jnp.int32)
-    record = jnp.stack([model.feature, model.left, model.right, thr_bits], -1).reshape(T * N, 4)
-    base = (jnp.arange(T, dtype=jnp.int32) * N)[:, None]                   # [T, 1]
-    rows = jnp.broadcast_to(jnp.arange(M, dtype=jnp.int32)[None], (T, M))
+    def tree(feature, threshold, left, right, value):
+        def level(_, node):
+            x = X[rows, feature[node]]
+            return jnp.where(x <= threshold[node], left[node], right[node])
 
-    def level(_, node):                                                    # node [T, M]
-        r = record[base + node]                                           # [T, M, 4]
-        x = X[rows, r[..., 0]]
-        thr = lax.bitcast_convert_type(r[..., 3], jnp.float32)
-        return jnp.where(x <= thr, r[..., 1], r[..., 2])
+        node = lax.fori_loop(0, model.levels.shape[0], level,
+                             jnp.zeros(X.shape[0], jnp.int32))
+        return value[node]
 
-    node = lax.fori_loop(0, model.levels.shape[0], level, jnp.zeros((T, M), jnp.int32))
-    votes = model.value.reshape(T * N)[base + node]
+    votes = jax.vmap(tree)(model.feature, model.threshold, model.left, model.right, model.value)
     return jnp.mean(votes, 0)
 
 
