@@ -37,7 +37,7 @@ from jaxtrack.tracking import user
 
 Array = jax.Array
 
-__all__ = ["Tracks", "track", "track_bag", "write_top_view", "write_animation"]
+__all__ = ["Tracks", "track", "track_batch", "track_bag", "write_top_view", "write_animation"]
 
 
 class Tracks(NamedTuple):
@@ -111,22 +111,158 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
       >>> tracks = track(bags.read_laser("run.bag", "/scan"),
       ...                bags.read_odometry("run.bag", "/odom"), estimator="jpda")
     """
-    if isinstance(estimator, str):
-        config = user.CONFIGS.get(estimator)
-        user.build(estimator)  # a clear error for an unknown name
-        if detections is None:
-            config = user.with_sensors(config, "laser")
-        if isinstance(config, user.LegTrackedConfig) and detector != "geometric":
-            # Leg tracks start on the classifier's confident legs (its decision threshold)
-            # and are kept by the candidates above the sensing threshold.
-            decision = float(leg_classifier.resolve(detector).decision)
-            config = dataclasses.replace(config, legs=dataclasses.replace(
-                config.legs, birth_confidence=decision))
-    else:
-        config = estimator
+    config = _config(estimator, detections is not None, detector)
     est = user.build(config)
     if int(chunk) < 1:
         raise ValueError(f"chunk must be >= 1; got {chunk}")
+    inp = _inputs(laser, odometry, detections, pan, pan_joint)
+    T, dt = len(inp.times), inp.dt
+    np_dtype = np.dtype(jnp.dtype(dtype).name)
+    if params is None:
+        params = est.params(dt=dt, dtype=dtype)
+    key = jax.random.PRNGKey(0) if key is None else key
+    scfg, leg_params = _sensing_config(laser, leg_params, max_segments, max_laser_people,
+                                       laser_mount, static_radius, detector)
+    static_map = _static_map(static_xy, dtype)
+    static = _Static(config, scfg, dt, pan is not None)
+    ranges = np.where(np.isfinite(inp.ranges), inp.ranges, leg_params.max_range).astype(np_dtype)
+    if user_xy is None:
+        user_xy = _first_user(ranges[0], inp.angles.astype(np_dtype), inp.pose[0], scfg)
+    run = _chunk_runner(static, int(chunk))
+    pose0 = jnp.asarray(inp.pose[0], dtype)
+    prior = user.Prior(jnp.asarray(user_xy, dtype), pose0)
+    carry = (est.init(jax.random.split(key)[1], params, prior), sensing.init(scfg, dtype), pose0)
+    C = int(chunk)
+    outs = []
+    bar = montecarlo.progress_bar(T, unit="frames", file=stream, disable=not progress)
+    for start in range(0, T, C):
+        n = min(C, T - start)
+        xs = _chunk_xs(inp, ranges, start, C, T, dtype)
+        carry, out = run(carry, xs, params, key, jnp.asarray(inp.angles, dtype), static_map)
+        outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
+        bar.update(n)
+    bar.close()
+    pos, ids, mask, user_xy, found = (np.concatenate(x) for x in zip(*outs))
+    return Tracks(np.arange(1, T + 1, dtype=np.int32), inp.times, ids, pos, mask, user_xy,
+                  found)
+
+
+def track_batch(lasers, odometries=None, estimator="gnn", *, chunk: int = 64,
+                keys: Array | None = None, leg_params: legs.LegParams | None = None,
+                laser_mount=(0.0, 0.0), detector: str = "learned", max_segments: int = 64,
+                max_laser_people: int = 8, static_radius: float = 0.3, dtype=jnp.float32,
+                progress: bool = True, stream=None) -> list[Tracks]:
+    """`track` on several recordings at once: one compiled chunk, vmapped over the
+    recordings, each carrying its own estimator state (laser, and optionally odometry).
+
+    The recordings must share the beam count (read them with ``bags.read_laser(...,
+    max_beams=B)`` to pad) and the scan period; shorter ones are padded with masked frames.
+    Recording ``b`` uses ``keys[b]`` (default ``fold_in(PRNGKey(0), b)``) and its own range
+    limits unless ``leg_params`` is given. Other arguments as in `track`.
+
+    Returns:
+      one `Tracks` per recording, in order.
+
+    Example:
+      >>> out = track_batch([bags.read_laser(p, "/scan", max_beams=512) for p in paths])
+    """
+    lasers = list(lasers)
+    if not lasers:
+        return []
+    odometries = [None] * len(lasers) if odometries is None else list(odometries)
+    if len(odometries) != len(lasers):
+        raise ValueError(f"{len(odometries)} odometries for {len(lasers)} recordings")
+    if int(chunk) < 1:
+        raise ValueError(f"chunk must be >= 1; got {chunk}")
+    config = _config(estimator, False, detector)
+    est = user.build(config)
+    inps = [_inputs(lz, od, None, None, "") for lz, od in zip(lasers, odometries)]
+    beams = {i.angles.shape[0] for i in inps}
+    if len(beams) > 1:
+        raise ValueError(f"the recordings have different beam counts {sorted(beams)}; read "
+                         "them with bags.read_laser(..., max_beams=B)")
+    dts = sorted({i.dt for i in inps})
+    if dts[-1] - dts[0] > 1e-3 * dts[0]:
+        raise ValueError(f"the recordings have different scan periods {dts}")
+    dt = inps[0].dt
+    np_dtype = np.dtype(jnp.dtype(dtype).name)
+    N = len(inps)
+    keys = (jax.vmap(lambda b: jax.random.fold_in(jax.random.PRNGKey(0), b))(jnp.arange(N))
+            if keys is None else jnp.asarray(keys))
+    params = est.params(dt=dt, dtype=dtype)
+    # One static sensing configuration: the range limits are per recording, so they enter as
+    # data (the leg parameters are float leaves) through a vmapped LegParams.
+    scfg, _ = _sensing_config(lasers[0], leg_params, max_segments, max_laser_people,
+                              laser_mount, static_radius, detector)
+    per = [leg_params or legs.LegParams(max_range=float(lz.range_max),
+                                        min_range=max(float(lz.range_min), 0.0))
+           for lz in lasers]
+    leg_batch = legs.LegParams(*(jnp.asarray([float(p[k]) for p in per], dtype)
+                                 for k in range(len(legs.LegParams._fields))))
+    static = _Static(config, scfg, dt, False)
+    ranges = [np.where(np.isfinite(i.ranges), i.ranges, p.max_range).astype(np_dtype)
+              for i, p in zip(inps, per)]
+    carries = []
+    for b, (i, r, p) in enumerate(zip(inps, ranges, per)):
+        user_xy = _first_user(r[0], i.angles.astype(np_dtype), i.pose[0],
+                              dataclasses.replace(scfg, leg_params=p))
+        pose0 = jnp.asarray(i.pose[0], dtype)
+        prior = user.Prior(jnp.asarray(user_xy, dtype), pose0)
+        carries.append((est.init(jax.random.split(keys[b])[1], params, prior),
+                        sensing.init(scfg, dtype), pose0))
+    carry = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *carries)
+    angles = jnp.asarray(np.stack([i.angles for i in inps]), dtype)
+    T = max(len(i.times) for i in inps)
+    run = _batch_runner(static, int(chunk))
+    static_map = _static_map(None, dtype)
+    C = int(chunk)
+    outs = []
+    bar = montecarlo.progress_bar(T * N, unit="frames", file=stream, disable=not progress)
+    for start in range(0, T, C):
+        xs = [_chunk_xs(i, r, start, C, len(i.times), dtype) for i, r in zip(inps, ranges)]
+        xs = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *xs)
+        carry, out = run(carry, xs, params, keys, angles, static_map, leg_batch)
+        outs.append(jax.tree_util.tree_map(np.asarray, out))
+        bar.update(min(C, T - start) * N)
+    bar.close()
+    pos, ids, mask, user_xy, found = (np.concatenate(x, axis=1) for x in zip(*outs))
+    result = []
+    for b, i in enumerate(inps):
+        n = len(i.times)
+        result.append(Tracks(np.arange(1, n + 1, dtype=np.int32), i.times, ids[b, :n],
+                             pos[b, :n], mask[b, :n], user_xy[b, :n], found[b, :n]))
+    return result
+
+
+class _Inputs(NamedTuple):
+    times: np.ndarray
+    ranges: np.ndarray
+    angles: np.ndarray
+    pose: np.ndarray
+    dxy: np.ndarray
+    dmask: np.ndarray
+    pan: np.ndarray
+    dt: float
+
+
+def _config(estimator, with_detections: bool, detector: str):
+    if not isinstance(estimator, str):
+        return estimator
+    config = user.CONFIGS.get(estimator)
+    user.build(estimator)  # a clear error for an unknown name
+    if not with_detections:
+        config = user.with_sensors(config, "laser")
+    if isinstance(config, user.LegTrackedConfig) and detector != "geometric":
+        # Leg tracks start on the classifier's confident legs (its decision threshold) and
+        # are kept by the candidates above the sensing threshold.
+        decision = float(leg_classifier.resolve(detector).decision)
+        config = dataclasses.replace(config, legs=dataclasses.replace(
+            config.legs, birth_confidence=decision))
+    return config
+
+
+def _inputs(laser, odometry, detections, pan, pan_joint) -> _Inputs:
+    """One recording's per-frame arrays, aligned to its valid laser scans."""
     rows = np.flatnonzero(np.asarray(laser.valid, bool))
     if rows.size == 0:
         raise ValueError("no laser scan to replay")
@@ -142,7 +278,6 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     dt = round(float(np.median(np.diff(times))), 6) if T > 1 else 0.1
     if not dt > 0:
         raise ValueError("laser times must increase")
-    np_dtype = np.dtype(jnp.dtype(dtype).name)
     if odometry is not None:
         ov = np.asarray(odometry.valid, bool)
         oi = _align(np.asarray(odometry.times)[ov], times, np.inf)
@@ -166,9 +301,11 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
             raise ValueError(f"joint {pan_joint!r} has no position in some joint states")
     else:
         pan_angle = np.zeros(T)
-    if params is None:
-        params = est.params(dt=dt, dtype=dtype)
-    key = jax.random.PRNGKey(0) if key is None else key
+    return _Inputs(times, ranges, angles, pose, dxy, dmask, pan_angle, dt)
+
+
+def _sensing_config(laser, leg_params, max_segments, max_laser_people, laser_mount,
+                    static_radius, detector):
     if leg_params is None:
         leg_params = legs.LegParams(max_range=float(laser.range_max),
                                     min_range=max(float(laser.range_min), 0.0))
@@ -176,35 +313,23 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
                                  int(max_segments), int(max_laser_people),
                                  tuple(map(float, laser_mount)), float(static_radius),
                                  detector=str(detector))
+    return scfg, leg_params
+
+
+def _static_map(static_xy, dtype):
     static_xy = np.zeros((0, 2)) if static_xy is None else np.asarray(static_xy, np.float64)
     if static_xy.ndim != 2 or static_xy.shape[1] != 2:
         raise ValueError(f"static_xy must be [F, 2]; got shape {static_xy.shape}")
-    static = _Static(config, scfg, dt, pan is not None)
-    ranges = np.where(np.isfinite(ranges), ranges, leg_params.max_range).astype(np_dtype)
-    if user_xy is None:
-        user_xy = _first_user(ranges[0], angles.astype(np_dtype), pose[0], scfg)
-    static_map = sensing.StaticMap(jnp.asarray(static_xy, dtype), jnp.zeros((0, 2, 2), dtype))
-    run = _chunk_runner(static, int(chunk))
-    pose0 = jnp.asarray(pose[0], dtype)
-    prior = user.Prior(jnp.asarray(user_xy, dtype), pose0)
-    carry = (est.init(jax.random.split(key)[1], params, prior), sensing.init(scfg, dtype), pose0)
-    C = int(chunk)
-    outs = []
-    bar = montecarlo.progress_bar(T, unit="frames", file=stream, disable=not progress)
-    for start in range(0, T, C):
-        n = min(C, T - start)
-        idx = np.arange(start, start + C)
-        sl = np.minimum(idx, T - 1)
-        xs = (jnp.asarray(ranges[sl]), jnp.asarray(pose[sl], dtype),
-              jnp.asarray(dxy[sl], dtype), jnp.asarray(dmask[sl] & (idx < T)[:, None]),
-              jnp.asarray(pan_angle[sl], dtype), jnp.asarray(idx < T),
-              jnp.asarray(idx, jnp.int32))
-        carry, out = run(carry, xs, params, key, jnp.asarray(angles, dtype), static_map)
-        outs.append(jax.tree_util.tree_map(lambda x, n=n: np.asarray(x)[:n], out))
-        bar.update(n)
-    bar.close()
-    pos, ids, mask, user_xy, found = (np.concatenate(x) for x in zip(*outs))
-    return Tracks(np.arange(1, T + 1, dtype=np.int32), times, ids, pos, mask, user_xy, found)
+    return sensing.StaticMap(jnp.asarray(static_xy, dtype), jnp.zeros((0, 2, 2), dtype))
+
+
+def _chunk_xs(inp: _Inputs, ranges, start, C, T, dtype):
+    """The scanned inputs of frames ``start .. start + C`` (past T: repeated, masked)."""
+    idx = np.arange(start, start + C)
+    sl = np.minimum(idx, T - 1)
+    return (jnp.asarray(ranges[sl]), jnp.asarray(inp.pose[sl], dtype),
+            jnp.asarray(inp.dxy[sl], dtype), jnp.asarray(inp.dmask[sl] & (idx < T)[:, None]),
+            jnp.asarray(inp.pan[sl], dtype), jnp.asarray(idx < T), jnp.asarray(idx, jnp.int32))
 
 
 def _align(src_times, dst_times, tol):
@@ -238,19 +363,20 @@ def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
                                               jnp.asarray(rel, jnp.float64)))
 
 
-@functools.lru_cache(maxsize=16)
-def _chunk_runner(static: _Static, chunk: int):
+def _chunk_fn(static: _Static):
     est = user.build(static.estimator)
     dt = static.dt
 
-    def run(carry, xs, params, key, angles, static_map):
+    def run(carry, xs, params, key, angles, static_map, leg_params=None):
+        config = (static.sensing if leg_params is None
+                  else dataclasses.replace(static.sensing, leg_params=leg_params))
 
         def frame(c, x):
             est_state, sensing_state, prev_pose = c
             ranges, pose, dxy, dmask, pan, valid, index = x
             odometry = sensing.Odometry(pose, geometry.relative(prev_pose, pose))
             new_sensing, sensed = sensing.sense(
-                static.sensing, sensing_state, ranges, angles, odometry, dxy, dmask, None,
+                config, sensing_state, ranges, angles, odometry, dxy, dmask, None,
                 static_map, map_pose=pose, period=dt)
             if static.pan:
                 sensed = sensed._replace(camera_pan=pan)
@@ -263,7 +389,17 @@ def _chunk_runner(static: _Static, chunk: int):
 
         return jax.lax.scan(frame, carry, xs)
 
-    return jax.jit(run)
+    return run
+
+
+@functools.lru_cache(maxsize=16)
+def _chunk_runner(static: _Static, chunk: int):
+    return jax.jit(_chunk_fn(static))
+
+
+@functools.lru_cache(maxsize=16)
+def _batch_runner(static: _Static, chunk: int):
+    return jax.jit(jax.vmap(_chunk_fn(static), in_axes=(0, 0, None, 0, 0, None, 0)))
 
 
 def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,

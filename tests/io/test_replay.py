@@ -281,3 +281,33 @@ def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(t
         replay.track(laser, odom, det, "pf", pan=joints, pan_joint="tilt", **kw)
     with pytest.raises(ValueError, match="no pan angle"):
         rec_mod.pan_record(rec._replace(pan=None))
+
+
+def test_a_batch_of_recordings_equals_each_replayed_alone(recording):
+    _, _, (laser, odom, _) = recording
+
+    def first(n):
+        return laser._replace(times=laser.times[:n], ranges=laser.ranges[:n],
+                              mask=laser.mask[:n], valid=laser.valid[:n])
+
+    parts = [laser, first(17)]
+    keys = jnp.stack([jax.random.PRNGKey(3), jax.random.PRNGKey(4)])
+    batch = replay.track_batch(parts, [odom, odom], "gnn", chunk=CHUNK, keys=keys,
+                               progress=False, detector=DETECTOR)
+    assert [len(b.times) for b in batch] == [len(laser.times), 17]
+    for part, got, key in zip(parts, batch, keys):
+        alone = replay.track(part, odom, None, "gnn", chunk=CHUNK, key=key, progress=False,
+                             detector=DETECTOR)
+        # The vmapped program rounds float32 differently, nothing else.
+        np.testing.assert_array_equal(got.ids, alone.ids)
+        np.testing.assert_array_equal(got.mask, alone.mask)
+        np.testing.assert_allclose(got.pos, alone.pos, atol=1e-4)
+        np.testing.assert_allclose(got.user, alone.user, atol=1e-4)
+    assert replay.track_batch([], progress=False) == []
+    with pytest.raises(ValueError, match="beam counts"):
+        replay.track_batch([laser, laser._replace(ranges=laser.ranges[:, :-1],
+                                                  angles=laser.angles[:-1],
+                                                  mask=laser.mask[:, :-1])],
+                           progress=False, detector=DETECTOR)
+    with pytest.raises(ValueError, match="odometries"):
+        replay.track_batch(parts, [odom], progress=False, detector=DETECTOR)
