@@ -164,6 +164,9 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--min-confidence", type=float, default=None,
                     help="image-plane ground truth: drop boxes whose conf is below it "
                          "(MOTChallenge: 1)")
+    ev.add_argument("--target-only", action="store_true",
+                    help="only the followed person is labelled: tracks farther than the "
+                         "threshold from every labelled person are not false positives")
     ev.add_argument("--out", type=Path, default=None,
                     help="directory for summary.csv and summary.json")
     args = parser.parse_args(argv)
@@ -294,7 +297,8 @@ def _evaluate(parser, args) -> int:
     try:
         rows = trajectories.evaluate_sequences(sequences, threshold=args.threshold,
                                                fmt=args.format, zero_distance=args.zero_distance,
-                                               min_confidence=args.min_confidence)
+                                               min_confidence=args.min_confidence,
+                                               target_only=args.target_only)
     except (ValueError, OSError) as err:
         parser.exit(2, f"jaxtrack evaluate: {err}\n")
     if len(rows) == 2:  # one sequence: its OVERALL row repeats it

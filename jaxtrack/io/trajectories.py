@@ -255,7 +255,8 @@ def read(path, fmt: str = "auto", **kwargs) -> Trajectories:
 
 
 def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "auto", *,
-                   zero_distance: float = 2.0, min_confidence: float | None = None) -> dict:
+                   zero_distance: float = 2.0, min_confidence: float | None = None,
+                   target_only: bool = False) -> dict:
     """CLEAR MOT, identity metrics and HOTA of a tracks file against a ground-truth file.
 
     The frames evaluated are those present in either file; a frame missing from the tracks
@@ -275,6 +276,9 @@ def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "aut
         ``"plain"``, ``"mot"`` or ``"mot2d"``.
       zero_distance: HOTA's distance of similarity 0 on the ground plane (m; TrackEval's 2.0).
       min_confidence: image-plane ground truth only: drop boxes whose ``conf`` is below it.
+      target_only: score as person-following benchmarks do, where only the followed person
+        is labelled: hypotheses farther than ``threshold`` from every labelled object of their
+        frame are left out, so tracks of unlabelled people are not false positives.
 
     Returns:
       dict with the `SUMMARY_COLUMNS` keys (``idf1, idp, idr, recall, precision,
@@ -288,11 +292,12 @@ def evaluate_files(gt_path, tracks_path, threshold: float = 0.5, fmt: str = "aut
       >>> print(format_summary({"seq": res}))
     """
     return _row(_score_pair(gt_path, tracks_path, threshold, fmt, zero_distance,
-                            min_confidence))
+                            min_confidence, target_only))
 
 
 def evaluate_sequences(sequences, threshold: float = 0.5, fmt: str = "auto", *,
-                       zero_distance: float = 2.0, min_confidence: float | None = None) -> dict:
+                       zero_distance: float = 2.0, min_confidence: float | None = None,
+                       target_only: bool = False) -> dict:
     """`evaluate_files` over several sequences, plus an ``"OVERALL"`` row.
 
     OVERALL pools the counts as py-motmetrics' ``generate_overall`` (MOTA, MOTP, IDF1 and the
@@ -302,7 +307,7 @@ def evaluate_sequences(sequences, threshold: float = 0.5, fmt: str = "auto", *,
     Args:
       sequences: mapping name -> (gt_path, tracks_path), or a sequence of such pairs (named by
         the ground truth's parent folder, or its file name when that repeats).
-      threshold, fmt, zero_distance, min_confidence: as `evaluate_files`.
+      threshold, fmt, zero_distance, min_confidence, target_only: as `evaluate_files`.
 
     Returns:
       dict name -> row (as `evaluate_files`), in the given order, then ``"OVERALL"``.
@@ -327,7 +332,7 @@ def evaluate_sequences(sequences, threshold: float = 0.5, fmt: str = "auto", *,
         if len(pair) != 2:
             raise ValueError(f"sequence {name!r}: expected a (gt, tracks) pair; got {pair!r}")
         scored.append((name, _score_pair(pair[0], pair[1], threshold, fmt, zero_distance,
-                                         min_confidence)))
+                                         min_confidence, target_only)))
     planes = {sc["plane"] for _, sc in scored}
     if len(planes) > 1:
         raise ValueError("the sequences mix ground-plane and image-plane files")
@@ -413,7 +418,8 @@ def write_summary(rows: dict, csv_path=None, json_path=None) -> None:
                       f, indent=2)
 
 
-def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confidence):
+def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confidence,
+                target_only=False):
     """Read two files and run the three metrics; numpy results and the file facts."""
     for name, value in (("threshold", threshold), ("zero_distance", zero_distance)):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) \
@@ -438,12 +444,14 @@ def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confide
     frames = np.union1d(np.asarray(gt.frames), np.asarray(hyp.frames))
     gt_ids, gt_pos = _on_frames(gt, frames)
     hyp_ids, hyp_pos = _on_frames(hyp, frames)
+    distance = "iou" if image else "euclidean"
+    if target_only:
+        hyp_ids = _near_labels(gt_ids, gt_pos, hyp_ids, hyp_pos, float(threshold), distance)
     _, dense = np.unique(gt_ids, return_inverse=True)
     dense = dense.reshape(gt_ids.shape) - (1 if np.any(gt_ids < 0) else 0)
     gt_ids = np.where(gt_ids >= 0, dense, -1).astype(np.int32)
     num_ids = max(int(gt_ids.max()) + 1, 1)
     num_hyp_ids = max(int(np.unique(hyp_ids[hyp_ids >= 0]).size), 1)
-    distance = "iou" if image else "euclidean"
     args = (jnp.asarray(gt_ids), jnp.asarray(gt_pos), None, jnp.asarray(hyp_ids),
             jnp.asarray(hyp_pos), None)
     clear = clear_mot(*args, float(threshold), num_ids=num_ids, distance=distance)
@@ -454,6 +462,21 @@ def _score_pair(gt_path, tracks_path, threshold, fmt, zero_distance, min_confide
     return jax.device_get(dict(clear=clear._replace(frames=None), identity=ident, hota=h,
                                num_frames=len(frames), threshold=float(threshold),
                                plane="image" if image else "ground"))
+
+
+def _near_labels(gt_ids, gt_pos, hyp_ids, hyp_pos, threshold, distance):
+    """Target-only scoring: hypothesis ids with those farther than ``threshold`` from every
+    labelled object of their frame set to -1 (absent). Where only the followed person is
+    labelled, the other tracks are of unlabelled people, not false positives; a hypothesis
+    within the threshold of the target may still be one (a second track on the target)."""
+    from jaxtrack.metrics import _pairs
+
+    d = np.asarray(jax.vmap(lambda a, b: _pairs.distance_matrix(a, b, distance))(
+        jnp.asarray(gt_pos, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32),
+        jnp.asarray(hyp_pos, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)))
+    d = np.where((gt_ids >= 0)[:, :, None] & np.isfinite(d), d, np.inf)     # [T, G, H]
+    near = np.any(d <= threshold, axis=1) if d.shape[1] else np.zeros(hyp_ids.shape, bool)
+    return np.where(near, hyp_ids, -1)
 
 
 def _stack(results):

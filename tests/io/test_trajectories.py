@@ -324,3 +324,30 @@ def test_format_clear_mot_prints_the_counts(gt_file, tmp_path):
     text = tj.format_clear_mot(res)
     assert f"{res['mota']:.4f}" in text and "id switches" in text
     assert f"  {res['num_switches']}" in text and "20 frames" in text
+
+
+def test_target_only_scoring_leaves_out_tracks_away_from_the_labelled_person(tmp_path):
+    # Ground truth labels only the followed person (id 1); the tracks hold her track (with one
+    # id switch and one miss), two tracks of unlabelled people far from her, and one spurious
+    # track 0.3 m from her in frame 4 (within the threshold: still a false positive).
+    T = 8
+    target = np.stack([np.linspace(0, 3.5, T), np.zeros(T)], -1)
+    gt = [(t + 1, 1, *target[t]) for t in range(T)]
+    mine = [(t + 1, 7 if t < 5 else 8, target[t, 0] + 0.05, 0.02) for t in range(T) if t != 2]
+    others = [(t + 1, 20 + k, 1.0 + k, 3.0 + k) for t in range(T) for k in range(2)]
+    spurious = [(5, 30, target[4, 0], 0.3)]
+    np.savetxt(tmp_path / "gt.txt", np.array(gt), fmt="%.6f")
+    np.savetxt(tmp_path / "all.txt", np.array(mine + others + spurious), fmt="%.6f")
+    np.savetxt(tmp_path / "near.txt", np.array(mine + spurious), fmt="%.6f")
+    full = tj.evaluate_files(tmp_path / "gt.txt", tmp_path / "all.txt", 0.5, "plain")
+    target_only = tj.evaluate_files(tmp_path / "gt.txt", tmp_path / "all.txt", 0.5, "plain",
+                                    target_only=True)
+    # The same as scoring a file without the far tracks (written by hand).
+    by_hand = tj.evaluate_files(tmp_path / "gt.txt", tmp_path / "near.txt", 0.5, "plain")
+    assert target_only == by_hand
+    assert full["num_false_positives"] == 2 * T + 1
+    assert target_only["num_false_positives"] == 1
+    assert target_only["num_misses"] == full["num_misses"] == 1
+    assert target_only["num_switches"] == full["num_switches"] == 1
+    assert target_only["mota"] > full["mota"]
+    assert target_only["motp"] == full["motp"]

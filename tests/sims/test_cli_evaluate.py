@@ -73,3 +73,23 @@ def test_file_errors_exit_2_with_one_line(tmp_path, capsys):
         assert exc.value.code == 2, argv
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) <= 3, (argv, err)
+
+
+def test_target_only_counts_no_false_positive_away_from_the_labelled_person(tmp_path, capsys):
+    import numpy as np
+
+    gt = np.array([(t, 1, 0.5 * t, 0.0) for t in range(1, 6)])
+    tracks = np.array([(t, 4, 0.5 * t + 0.05, 0.0) for t in range(1, 6)]
+                      + [(t, 9, 3.0, 3.0) for t in range(1, 6)])
+    np.savetxt(tmp_path / "gt.txt", gt)
+    np.savetxt(tmp_path / "tracks.txt", tracks)
+    argv = ["evaluate", "--gt", str(tmp_path / "gt.txt"), "--tracks",
+            str(tmp_path / "tracks.txt"), "--format", "plain", "--out", str(tmp_path / "o")]
+    assert cli.main(argv) == 0
+    rows = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert rows[next(iter(rows))]["num_false_positives"] == 5
+    capsys.readouterr()
+    assert cli.main(argv + ["--target-only"]) == 0
+    rows = json.loads((tmp_path / "o" / "summary.json").read_text())
+    row = rows[next(iter(rows))]
+    assert row["num_false_positives"] == 0 and row["num_misses"] == 0 and row["mota"] == 1.0
