@@ -108,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="geometry_msgs/PoseArray or people_msgs/PositionMeasurementArray "
                           "topic (robot frame)")
     trk.add_argument("--odom-topic", default=None, help="nav_msgs/Odometry topic")
+    trk.add_argument("--tf-frames", nargs=2, default=None, metavar=("PARENT", "CHILD"),
+                     help="odometry from the transform tree (/tf, /tf_static) instead: the "
+                          "pose of CHILD (e.g. base_link) in PARENT (e.g. odom)")
     trk.add_argument("--pan-topic", default=None,
                      help="sensor_msgs/JointState topic of the RGB-D camera's pan unit")
     trk.add_argument("--pan-joint", default="camera_pan", help="the pan joint's name")
@@ -175,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--chunk and --max-detections must be positive")
         if not args.bag.exists():
             parser.error(f"--bag {args.bag} does not exist")
+        if args.odom_topic and args.tf_frames:
+            parser.error("give --odom-topic or --tf-frames, not both")
         if args.static_points is not None:
             _check_points_file(parser, args.static_points)
         if args.detector not in ("learned", "geometric"):
@@ -195,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
                       max_detections=args.max_detections, seed=args.seed,
                       time_source=args.time_source, static_points=args.static_points,
                       pan_topic=args.pan_topic, pan_joint=args.pan_joint,
-                      detector=args.detector, animate=args.animate)
+                      detector=args.detector, animate=args.animate,
+                      tf_frames=tuple(args.tf_frames) if args.tf_frames else None)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         except ImportError as err:

@@ -51,15 +51,16 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagReport",
-           "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry",
+           "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry", "read_tf",
            "read_detections", "JointStates", "read_joint_states", "resample",
            "register_people_msgs", "write_bag", "topics", "beam_angles",
-           "LASER_SCAN", "IMAGE", "ODOMETRY", "POSE_ARRAY", "POSITION_MEASUREMENT_ARRAY",
-           "JOINT_STATE", "MAX_RESAMPLE_SLOTS", "OUTLIER_GAP"]
+           "LASER_SCAN", "IMAGE", "ODOMETRY", "TF_MESSAGE", "POSE_ARRAY",
+           "POSITION_MEASUREMENT_ARRAY", "JOINT_STATE", "MAX_RESAMPLE_SLOTS", "OUTLIER_GAP"]
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 IMAGE = "sensor_msgs/msg/Image"
 ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSITION_MEASUREMENT_ARRAY = "people_msgs/msg/PositionMeasurementArray"
@@ -370,6 +371,145 @@ def read_odometry(path, topic: str, *, rate: float | None = None, method: str = 
         return out
     grid, valid, (pose, twist) = _resample(report, times, pose, twist, rate=rate, method=method)
     return out._replace(times=grid, pose=pose, twist=twist, valid=valid)
+
+
+def read_tf(path, parent: str, child: str, *, topic: str = "/tf",
+            static_topic: str | None = "/tf_static", time_source: str = "header",
+            typestore=None) -> Odometry:
+    """The planar pose of frame ``child`` in frame ``parent`` over time, from the transform
+    tree of a bag (``tf2_msgs/TFMessage`` on ``topic`` and, when present, ``static_topic``):
+    e.g. ``read_tf(bag, "odom", "base_link")`` where a robot publishes its odometry as a
+    transform rather than a ``nav_msgs/Odometry`` topic.
+
+    Frame names are compared without a leading slash (ROS 1 ``/odom`` is ROS 2 ``odom``). The
+    chain from ``parent`` to ``child`` may pass through several frames, in either direction;
+    its transforms are composed in the plane (x, y and the yaw of each quaternion). The result
+    has one row per message of the chain's first moving link, each other link taken at its
+    nearest message in time (static links: their one transform). The twist is not in a
+    transform tree: it is the pose difference over the time step, in the child frame (0 for
+    the first row).
+
+    Returns:
+      `Odometry` (times, pose [T, 3] of the child in the parent frame, twist, valid, report).
+
+    Example:
+      >>> odom = read_tf("run.bag", "odom", "base_link")
+    """
+    parent, child = _frame(parent), _frame(child)
+    if parent == child:
+        raise ValueError(f"parent and child are the same frame {parent!r}")
+    edges: dict = {}                 # (parent, child) -> [(time, (x, y, yaw))]
+    dynamic: set = set()
+    msgs, report = _read_topic(path, topic, (TF_MESSAGE,), time_source, typestore)
+    sources = [(msgs, True)]
+    if static_topic is not None:
+        try:
+            static, _ = _read_topic(path, static_topic, (TF_MESSAGE,), time_source, typestore)
+            sources.append((static, False))
+        except BagError as err:
+            if "is not in" not in str(err):
+                raise
+    for messages, moving in sources:
+        for t_msg, m in messages:
+            for tr in m.transforms:
+                key = (_frame(tr.header.frame_id), _frame(tr.child_frame_id))
+                s = tr.header.stamp
+                t = s.sec + 1e-9 * s.nanosec if time_source == "header" else t_msg
+                v, q = tr.transform.translation, tr.transform.rotation
+                yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y),
+                                 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+                edges.setdefault(key, []).append((t, (v.x, v.y, yaw)))
+                if moving:
+                    dynamic.add(key)
+    chain = _tf_chain(edges, parent, child)
+    if chain is None:
+        known = sorted({f for e in edges for f in e})
+        raise BagError(f"no chain of transforms from {parent!r} to {child!r} in {path} "
+                       f"(frames: {', '.join(known) or 'none'})")
+    series = []
+    for a, b, forward in chain:
+        rows = sorted(edges[(a, b)])
+        times = np.array([t for t, _ in rows])
+        poses = np.array([p for _, p in rows], np.float64)
+        series.append((times, poses, forward, (a, b) in dynamic))
+    moving = [s for s in series if s[3] and len(s[0]) > 1]
+    times = moving[0][0] if moving else series[0][0][:1]
+    pose = np.zeros((len(times), 3))
+    for link_times, poses, forward, _ in series:
+        i = _align(link_times, times)
+        link = poses[i]
+        if not forward:
+            link = _se2_inverse(link)
+        pose = _se2_compose(pose, link)
+    finite = np.all(np.isfinite(pose), 1)
+    if not finite.all():
+        times, pose = times[finite], pose[finite]
+        report = report._replace(detail="; ".join(
+            ([report.detail] if report.detail else [])
+            + [f"{int((~finite).sum())} transforms with NaN / inf dropped"]))
+    twist = np.zeros_like(pose)
+    if len(times) > 1:
+        d = np.diff(pose, axis=0)
+        dt = np.maximum(np.diff(times), 1e-9)[:, None]
+        c, s_ = np.cos(pose[:-1, 2]), np.sin(pose[:-1, 2])
+        twist[1:, 0] = (c * d[:, 0] + s_ * d[:, 1]) / dt[:, 0]
+        twist[1:, 1] = (-s_ * d[:, 0] + c * d[:, 1]) / dt[:, 0]
+        twist[1:, 2] = np.angle(np.exp(1j * d[:, 2])) / dt[:, 0]
+    report = report._replace(topic=f"{topic} {parent} -> {child}", messages=len(times))
+    return Odometry(times, pose, twist, np.ones(len(times), bool), report)
+
+
+def _frame(name: str) -> str:
+    return str(name).lstrip("/")
+
+
+def _tf_chain(edges, parent, child):
+    """[(a, b, forward)] links from ``parent`` to ``child`` (breadth first over the tree, each
+    stored edge usable both ways), or None."""
+    from collections import deque
+
+    graph: dict = {}
+    for a, b in edges:
+        graph.setdefault(a, []).append((b, (a, b, True)))
+        graph.setdefault(b, []).append((a, (a, b, False)))
+    prev = {parent: None}
+    queue = deque([parent])
+    while queue:
+        f = queue.popleft()
+        if f == child:
+            break
+        for g, link in graph.get(f, []):
+            if g not in prev:
+                prev[g] = (f, link)
+                queue.append(g)
+    if child not in prev:
+        return None
+    path = []
+    f = child
+    while prev[f] is not None:
+        f, link = prev[f]
+        path.append(link)
+    return path[::-1]
+
+
+def _align(src, dst):
+    """Index of the nearest ``src`` time to each ``dst`` time."""
+    j = np.clip(np.searchsorted(src, dst), 1, max(len(src) - 1, 1))
+    lo = np.clip(j - 1, 0, len(src) - 1)
+    hi = np.clip(j, 0, len(src) - 1)
+    return np.where(np.abs(src[lo] - dst) <= np.abs(src[hi] - dst), lo, hi)
+
+
+def _se2_compose(a, b):
+    """Poses [N, 3]: b expressed in a's frame, composed (a then b)."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.stack([a[:, 0] + c * b[:, 0] - s * b[:, 1], a[:, 1] + s * b[:, 0] + c * b[:, 1],
+                     np.angle(np.exp(1j * (a[:, 2] + b[:, 2])))], -1)
+
+
+def _se2_inverse(p):
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    return np.stack([-c * p[:, 0] - s * p[:, 1], s * p[:, 0] - c * p[:, 1], -p[:, 2]], -1)
 
 
 def read_joint_states(path, topic: str, names=None, *, rate: float | None = None,

@@ -407,13 +407,16 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
               static_points=None, pan_topic: str | None = None,
               pan_joint: str = "camera_pan", detector: str = "learned",
-              animate: bool = False, stream=sys.stdout) -> dict:
+              animate: bool = False, tf_frames: tuple[str, str] | None = None,
+              stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
     (`track`'s ``static_xy``). ``pan_topic``: ``sensor_msgs/JointState`` of the camera's
     pan unit (joint ``pan_joint``). ``detector``: `track`'s. ``animate``: also write
-    ``replay.gif`` (`write_animation`, every second frame).
+    ``replay.gif`` (`write_animation`, every second frame). ``tf_frames``: ``(parent,
+    child)``, the odometry from the bag's transform tree instead (`bags.read_tf`, e.g.
+    ``("odom", "base_link")``).
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -426,8 +429,10 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     from jaxtrack.io import trajectories
 
     laser = bags.read_laser(bag, laser_topic, time_source=time_source)
-    odom = (bags.read_odometry(bag, odom_topic, time_source=time_source)
-            if odom_topic else None)
+    if odom_topic and tf_frames:
+        raise ValueError("give odom_topic or tf_frames, not both")
+    odom = (bags.read_odometry(bag, odom_topic, time_source=time_source) if odom_topic
+            else bags.read_tf(bag, *tf_frames, time_source=time_source) if tf_frames else None)
     det = (bags.read_detections(bag, detections_topic, max_detections, time_source=time_source)
            if detections_topic else None)
     pan = (bags.read_joint_states(bag, pan_topic, [pan_joint], time_source=time_source)
