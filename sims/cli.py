@@ -125,6 +125,15 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--detector", default="learned",
                      help="leg detector: 'learned' (the shipped classifier), 'geometric', or a "
                           "model file of `jaxtrack train-legs`")
+    trk.add_argument("--gt-topic", default=None,
+                     help="people ground truth in the bag (a list of entries with an id and a "
+                          "position, any message type the bag defines), in the tracks' frame: "
+                          "written as gt.csv and scored against the tracks")
+    trk.add_argument("--gt-threshold", type=float, default=0.5,
+                     help="match distance of the scoring (m)")
+    trk.add_argument("--target-only", action="store_true",
+                     help="only the followed person is labelled in --gt-topic: tracks away "
+                          "from every labelled person are not false positives")
     trk.add_argument("--animate", action="store_true",
                      help="also write an animated top view, replay.gif")
     trk.add_argument("--seed", type=int, default=0)
@@ -180,6 +189,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--bag {args.bag} does not exist")
         if args.odom_topic and args.tf_frames:
             parser.error("give --odom-topic or --tf-frames, not both")
+        if not (math.isfinite(args.gt_threshold) and args.gt_threshold > 0):
+            parser.error(f"--gt-threshold must be positive; got {args.gt_threshold}")
+        if args.target_only and not args.gt_topic:
+            parser.error("--target-only needs --gt-topic")
         if args.static_points is not None:
             _check_points_file(parser, args.static_points)
         if args.detector not in ("learned", "geometric"):
@@ -201,7 +214,9 @@ def main(argv: list[str] | None = None) -> int:
                       time_source=args.time_source, static_points=args.static_points,
                       pan_topic=args.pan_topic, pan_joint=args.pan_joint,
                       detector=args.detector, animate=args.animate,
-                      tf_frames=tuple(args.tf_frames) if args.tf_frames else None)
+                      tf_frames=tuple(args.tf_frames) if args.tf_frames else None,
+                      gt_topic=args.gt_topic, gt_threshold=args.gt_threshold,
+                      target_only=args.target_only)
         except bags.BagError as err:
             parser.exit(2, f"jaxtrack track: {err}\n")
         except ImportError as err:

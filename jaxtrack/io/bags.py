@@ -52,6 +52,7 @@ import numpy as np
 
 __all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagReport",
            "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry", "read_tf",
+           "People", "read_people",
            "read_detections", "JointStates", "read_joint_states", "resample",
            "register_people_msgs", "write_bag", "topics", "beam_angles",
            "LASER_SCAN", "IMAGE", "ODOMETRY", "TF_MESSAGE", "POSE_ARRAY",
@@ -510,6 +511,114 @@ def _se2_compose(a, b):
 def _se2_inverse(p):
     c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
     return np.stack([-c * p[:, 0] - s * p[:, 1], s * p[:, 0] - c * p[:, 1], -p[:, 2]], -1)
+
+
+class People(NamedTuple):
+    """People with identities, one topic (e.g. ground truth), at most M per message.
+
+    Attributes:
+      times: [T] float64 seconds.
+      ids: [T, M] int64 identities (-1 where absent); string identities are numbered in order
+        of first appearance (``names`` maps them back).
+      xy: [T, M, 2] float64 positions in the message's frame (0 where absent).
+      valid: [T] bool; names: tuple of the string identities (empty for integer ones);
+      report: `BagReport`.
+    """
+
+    times: np.ndarray
+    ids: np.ndarray
+    xy: np.ndarray
+    valid: np.ndarray
+    names: tuple = ()
+    report: BagReport | None = None
+
+
+_ID_FIELDS = ("object_id", "track_id", "id", "name", "label")
+_POSITION_FIELDS = ("pos", "position", "pose", "point", "center")
+
+
+def read_people(path, topic: str, max_people: int, *, time_source: str = "header",
+                typestore=None) -> People:
+    """Read identified people (ground truth, or another tracker's output) from any message
+    type that holds a list of entries with an identity and a position.
+
+    The message's first list field whose entries have an identity field (one of
+    ``object_id``, ``track_id``, ``id``, ``name``, ``label``) and a position field (``pos``,
+    ``position``, ``pose``, ``point``, ``center``; a pose's ``position``, a pose with
+    covariance's ``pose.position``) is read: ``people_msgs/PositionMeasurementArray``,
+    ``spencer_tracking_msgs/TrackedPersons``, or a custom message whose definition the bag
+    carries (ROS 1 bags always do). Entries with NaN / inf positions are left out; entries
+    beyond ``max_people`` too, and counted in the report.
+
+    Example:
+      >>> gt = read_people("run.bag", "/people_gt", 16)
+      >>> gt.ids.shape, gt.xy.shape                 # (T, 16), (T, 16, 2)
+    """
+    M = int(max_people)
+    if M < 1:
+        raise ValueError(f"max_people must be >= 1; got {max_people}")
+    msgs, report = _read_topic(path, topic, None, time_source, typestore)
+    if not msgs:
+        raise _no_messages(report.msgtype or "people", topic, path, report)
+    field = _people_field(msgs[0][1])
+    if field is None:
+        raise BagError(f"{topic!r} in {path} ({report.msgtype}) has no list of entries with "
+                       f"an identity ({', '.join(_ID_FIELDS)}) and a position "
+                       f"({', '.join(_POSITION_FIELDS)})")
+    list_name, id_name, pos_name = field
+    names: dict = {}
+    ids = np.full((len(msgs), M), -1, np.int64)
+    xy = np.zeros((len(msgs), M, 2))
+    dropped = nonfinite = 0
+    for i, (_, m) in enumerate(msgs):
+        k = 0
+        for entry in getattr(m, list_name):
+            x, y = _position(getattr(entry, pos_name))
+            if not (math.isfinite(x) and math.isfinite(y)):
+                nonfinite += 1
+                continue
+            if k >= M:
+                dropped += 1
+                continue
+            raw = getattr(entry, id_name)
+            ids[i, k] = names.setdefault(raw, len(names)) if isinstance(raw, str) else int(raw)
+            xy[i, k] = (x, y)
+            k += 1
+    notes = [f"{dropped} people beyond max_people={M} dropped"] if dropped else []
+    notes += [f"{nonfinite} people with NaN / inf positions dropped"] if nonfinite else []
+    if notes:
+        report = report._replace(detail="; ".join(([report.detail] if report.detail else [])
+                                                  + notes))
+    times = np.array([t for t, _ in msgs], np.float64)
+    return People(times, ids, xy, np.ones(len(msgs), bool), tuple(names), report)
+
+
+def _people_field(msg):
+    """(list field, identity field, position field) of a people message, or None."""
+    for name in getattr(msg, "__dataclass_fields__", {}):
+        value = getattr(msg, name)
+        if not isinstance(value, (list, tuple)) or not value:
+            continue
+        entry = value[0]
+        fields = getattr(entry, "__dataclass_fields__", {})
+        id_name = next((f for f in _ID_FIELDS if f in fields), None)
+        pos_name = next((f for f in _POSITION_FIELDS if f in fields), None)
+        if id_name and pos_name:
+            try:
+                _position(getattr(entry, pos_name))
+            except AttributeError:
+                continue
+            return name, id_name, pos_name
+    return None
+
+
+def _position(p):
+    """(x, y) of a point, a pose (its ``position``) or a pose with covariance."""
+    for _ in range(3):
+        if hasattr(p, "x") and hasattr(p, "y"):
+            return float(p.x), float(p.y)
+        p = getattr(p, "position", None) or getattr(p, "pose")
+    raise AttributeError("no position")
 
 
 def read_joint_states(path, topic: str, names=None, *, rate: float | None = None,
@@ -1100,6 +1209,8 @@ def _resolve_topic(topic, available, path):
 
 
 def _check_type(topic, msgtype, accepted, path):
+    if accepted is None:       # any type: the caller inspects the messages
+        return
     if msgtype not in accepted:
         raise BagError(f"topic {topic!r} in {path} carries {msgtype}; expected "
                        + " or ".join(accepted))
@@ -1272,7 +1383,7 @@ def _read_salvaged(path, topic, accepted, time_source, ts, reason):
         raise BagError(f"{path} is not readable ({reason}); no message could be recovered"
                        f"{where}")
     # A damaged connection record may give a topic a second, garbled type: keep the one asked for.
-    available = {t: min(m & set(accepted) or m) for t, m in types.items()}
+    available = {t: min(m & set(accepted or ()) or m) for t, m in types.items()}
     name = _resolve_topic(topic, available, path)
     msgtype = available[name]
     _check_type(name, msgtype, accepted, path)

@@ -408,6 +408,8 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               static_points=None, pan_topic: str | None = None,
               pan_joint: str = "camera_pan", detector: str = "learned",
               animate: bool = False, tf_frames: tuple[str, str] | None = None,
+              gt_topic: str | None = None, gt_threshold: float = 0.5,
+              target_only: bool = False, max_gt_people: int = 32,
               stream=sys.stdout) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
@@ -416,7 +418,11 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     pan unit (joint ``pan_joint``). ``detector``: `track`'s. ``animate``: also write
     ``replay.gif`` (`write_animation`, every second frame). ``tf_frames``: ``(parent,
     child)``, the odometry from the bag's transform tree instead (`bags.read_tf`, e.g.
-    ``("odom", "base_link")``).
+    ``("odom", "base_link")``). ``gt_topic``: people ground truth in the bag (ids and
+    positions in the tracks' frame: `bags.read_people`), written as ``gt.csv`` aligned to the
+    scans (nearest message within half a frame) and scored against the tracks with
+    `trajectories.evaluate_files` (``gt_threshold`` m, ``target_only``); the summary is printed
+    and returned under ``"summary"``.
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -452,7 +458,19 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     if animate:
         write_animation(out / "replay.gif", tracks, laser, odom, every=2, fps=5,
                         title=f"{Path(bag).name}: {estimator}")
-    reports = [r.report for r in (laser, odom, det, pan) if r is not None]
+    gt = None
+    summary = None
+    if gt_topic:
+        gt = bags.read_people(bag, gt_topic, max_gt_people, time_source=time_source)
+        gi = _align(gt.times, tracks.times, 0.5 * float(np.median(np.diff(tracks.times)))
+                    if len(tracks.times) > 1 else np.inf)
+        ids = np.where((gi >= 0)[:, None], gt.ids[np.maximum(gi, 0)], -1)
+        trajectories.write_mot_csv(out / "gt.csv", tracks.frames, ids,
+                                   gt.xy[np.maximum(gi, 0)], ids >= 0)
+        summary = trajectories.evaluate_files(out / "gt.csv", csv, gt_threshold, "mot",
+                                              target_only=target_only)
+        print(trajectories.format_summary({Path(bag).name: summary}), file=stream)
+    reports = [r.report for r in (laser, odom, det, pan, gt) if r is not None]
     n_ids = len(np.unique(tracks.ids[tracks.mask])) if tracks.mask.any() else 0
     print(f"{len(tracks.frames)} frames ({tracks.times[-1] - tracks.times[0]:.1f} s) replayed "
           f"with {estimator} in {seconds:.1f} s (compilation included): {n_ids} track ids, "
@@ -462,7 +480,8 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
             print(f"warning: {r.topic}: {r.messages} messages read, "
                   f"{'unknown' if r.unreadable < 0 else r.unreadable} unreadable: {r.detail}",
                   file=stream)
-    return {"tracks": tracks, "rows": rows, "csv": csv, "plot": plot, "reports": reports}
+    return {"tracks": tracks, "rows": rows, "csv": csv, "plot": plot, "reports": reports,
+            "summary": summary}
 
 
 def write_top_view(path, tracks: Tracks, odometry: bags.Odometry | None = None, title=""):
