@@ -29,7 +29,7 @@ from jaxtrack.angles import wrap
 Array = jax.Array
 
 __all__ = ["rotate", "unrotate", "to_frame", "from_frame", "compose", "inverse", "relative",
-           "safe_norm"]
+           "safe_norm", "safe_sqrt"]
 
 
 def rotate(theta, v: Array) -> Array:
@@ -119,6 +119,18 @@ def relative(a: Array, b: Array) -> Array:
     c, s = jnp.cos(a[..., 2]), jnp.sin(a[..., 2])
     dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
     return jnp.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[..., 2] - a[..., 2])], -1)
+
+
+def safe_sqrt(x: Array) -> Array:
+    """:math:`\sqrt{x}` for :math:`x \ge 0`, 0 for :math:`x \le 0`, with a zero (not NaN)
+    gradient at 0 (see `safe_norm`): sums of squares that are 0 for degenerate inputs (a
+    one-point laser segment's width and scatter) stay differentiable.
+
+    Example:
+      >>> jax.grad(safe_sqrt)(0.0)                    # 0.0
+    """
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
 def safe_norm(v: Array) -> Array:

@@ -109,8 +109,8 @@ _CHUNK = 64   # scans per compiled call: one compilation per beam count and capa
 @functools.partial(jax.jit, static_argnames=("max_segments",))
 def _chunk_segments(ranges, angles, max_range, jump, max_segments):
     def one(r):
-        xy, valid = legs._points(r, angles, 0.0, max_range)
-        segs = legs._segment(xy, valid, jump, max_segments)
+        xy, valid = legs.scan_returns(r, angles, 0.0, max_range)
+        segs = legs.segment_returns(xy, valid, jump, max_segments)
         X = leg_features.segment_features(xy, valid, segs)
         n = jnp.maximum(segs.num_points, 1).astype(xy.dtype)
         ids = jnp.where(segs.labels >= 0, segs.labels, max_segments)
@@ -176,7 +176,8 @@ def _counts(det_xy, det_mask, labels, label_mask, radius):
     def one(d, dm, lab, lm):
         cost = jnp.sqrt(jnp.sum((lab[:, None] - d[None]) ** 2, -1))
         cost = jnp.where(cost <= radius, cost, jnp.inf)
-        col = assignment._linear_sum_assignment(cost, radius, lm, dm)
+        col = assignment.linear_sum_assignment(cost, unassigned_cost=radius, row_mask=lm,
+                                               col_mask=dm)
         tp = jnp.sum(col >= 0)
         return tp, jnp.sum(dm) - tp, jnp.sum(lm) - tp
 

@@ -410,7 +410,7 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               animate: bool = False, tf_frames: tuple[str, str] | None = None,
               gt_topic: str | None = None, gt_threshold: float = 0.5,
               target_only: bool = False, max_gt_people: int = 32,
-              stream=sys.stdout) -> dict:
+              stream=None) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
@@ -433,6 +433,8 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     from pathlib import Path
 
     from jaxtrack.io import trajectories
+
+    stream = sys.stdout if stream is None else stream
 
     laser = bags.read_laser(bag, laser_topic, time_source=time_source)
     if odom_topic and tf_frames:

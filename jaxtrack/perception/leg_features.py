@@ -50,7 +50,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 from jaxtrack.perception import legs as legs_mod
 
 Array = jax.Array
@@ -82,7 +82,7 @@ def compute(ranges: Array, angles: Array, segments: legs_mod.Segments, max_range
       >>> segs = legs.segment(ranges, angles, 5.6, jump=0.13)
       >>> X = compute(ranges, angles, segs, 5.6)          # [S, 14]
     """
-    legs_mod._check_scan(ranges, angles)
+    legs_mod.check_scan(ranges, angles)
     if _checks.shape_of(ranges)[0] == 0:        # no beam, no segment
         dtype = jnp.result_type(ranges, angles, float)
         return jnp.zeros((segments.first.shape[0], NUM_FEATURES), dtype)
@@ -91,7 +91,7 @@ def compute(ranges: Array, angles: Array, segments: legs_mod.Segments, max_range
 
 @jax.jit
 def _compute(ranges, angles, segments, min_range, max_range):
-    xy, valid = legs_mod._points(ranges, angles, min_range, max_range)
+    xy, valid = legs_mod.scan_returns(ranges, angles, min_range, max_range)
     return segment_features(xy, valid, segments)
 
 
@@ -108,7 +108,7 @@ def segment_features(xy: Array, valid: Array, segs: legs_mod.Segments) -> Array:
     labels = segs.labels
     ids = jnp.where(labels >= 0, labels, S)
     inside = labels >= 0
-    sqrt0 = legs_mod._sqrt0
+    sqrt0 = geometry.safe_sqrt
 
     def total(v):                    # segment sums of per-beam rows [B, K] -> [S, K]
         return jax.ops.segment_sum(jnp.where(inside[:, None], v, 0.0), ids, S + 1)[:S]

@@ -41,12 +41,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, geometry
 
 Array = jax.Array
 
 __all__ = ["LegParams", "Segments", "SegmentFeatures", "People", "Detections", "segment",
-           "features", "leg_candidates", "pair_legs", "detect", "detect_people"]
+           "features", "leg_candidates", "pair_legs", "detect", "detect_people", "scan_returns",
+           "segment_returns", "check_scan"]
 
 
 class LegParams(NamedTuple):
@@ -419,12 +420,28 @@ def detect_people(ranges: Array, angles: Array, params: LegParams = LegParams(),
 # ---------------------------------------------------------------------------------------------
 
 
-def _sqrt0(x):
-    """sqrt with a zero (not NaN) gradient at 0: one-point segments have zero width and
-    scatter, and a NaN derivative there would poison the gradient of every range through the
-    segment sums even though those segments are masked out."""
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+# A one-point segment has zero width and scatter; a NaN derivative of their square roots
+# there would poison the gradient of every range through the segment sums, though those
+# segments are masked out.
+_sqrt0 = geometry.safe_sqrt
+
+
+def scan_returns(ranges: Array, angles: Array, min_range, max_range) -> tuple[Array, Array]:
+    """The returns of a scan in the sensor frame: ``(xy [B, 2], valid [B])``, valid where the
+    range is finite and within ``(min_range, max_range)`` (0 where not valid). No checks: the
+    building block of `segment` and `jaxtrack.perception.leg_features`."""
+    return _points(ranges, angles, min_range, max_range)
+
+
+def segment_returns(xy: Array, valid: Array, jump, max_segments: int) -> Segments:
+    """`segment` on the returns of `scan_returns` (static ``max_segments``; no checks)."""
+    return _segment(xy, valid, jump, int(max_segments))
+
+
+def check_scan(ranges, angles) -> None:
+    """The checks of a scan at the public boundary: ranges [B], angles [B] finite, no NaN
+    range (inf or ``max_range`` for beams without a return)."""
+    _check_scan(ranges, angles)
 
 
 def _points(ranges, angles, min_range, max_range):
