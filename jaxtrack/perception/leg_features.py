@@ -167,16 +167,7 @@ def segment_features(xy: Array, valid: Array, segs: legs_mod.Segments) -> Array:
     length = jnp.where(segs.mask, hi - lo, 0.0)
 
     # Kasa circle (as in legs.features), residual sum of squares to it.
-    det = suu * svv - suv ** 2
-    fit = segs.mask & (n >= 3) & (det > 1e-6 * jnp.maximum(half_tr, 1e-30) ** 2)
-    safe_det = jnp.where(fit, det, 1.0)
-    D = -(svv * suz - suv * svz) / safe_det
-    E = -(suu * svz - suv * suz) / safe_det
-    F = -sz / safe_n
-    rho_sq = 0.25 * (D * D + E * E) - F
-    fit = fit & (rho_sq > 0)
-    rho = jnp.where(fit, jnp.sqrt(jnp.where(fit, rho_sq, 1.0)), 0.0)
-    centre = jnp.where(fit[:, None], jnp.stack([-0.5 * D, -0.5 * E], -1), 0.0)
+    fit, centre, rho = legs_mod.kasa_circle(segs.mask, n, sums[:, :6])
     circle = jnp.concatenate([centre, rho[:, None]], -1)[seg_of_beam]
     resid = sqrt0(jnp.sum((u - circle[:, :2]) ** 2, -1)) - circle[:, 2]
     circ_rss = total(resid[:, None] ** 2)[:, 0]

@@ -47,7 +47,7 @@ Array = jax.Array
 
 __all__ = ["LegParams", "Segments", "SegmentFeatures", "People", "Detections", "segment",
            "features", "leg_candidates", "pair_legs", "detect", "detect_people", "scan_returns",
-           "segment_returns", "check_scan"]
+           "segment_returns", "check_scan", "kasa_circle"]
 
 
 class LegParams(NamedTuple):
@@ -498,19 +498,9 @@ def _features(xy, segs):
     lam_min = half_tr - _sqrt0(half_diff ** 2 + suv ** 2)
     linearity = _sqrt0(jnp.maximum(lam_min, 0.0) / safe_n)
 
-    # Kasa fit; undefined for < 3 points or (numerically) collinear points.
-    det = suu * svv - suv ** 2
-    fit = segs.mask & (n >= 3) & (det > 1e-6 * jnp.maximum(half_tr, 1e-30) ** 2)
-    safe_det = jnp.where(fit, det, 1.0)
-    D = -(svv * suz - suv * svz) / safe_det
-    E = -(suu * svz - suv * suz) / safe_det
-    F = -sz / safe_n
-    local = jnp.stack([-0.5 * D, -0.5 * E], -1)
-    rho_sq = 0.25 * (D * D + E * E) - F
-    fit = fit & (rho_sq > 0)
-    radius = jnp.where(fit, jnp.sqrt(jnp.where(fit, rho_sq, 1.0)), jnp.inf)
-    local = jnp.where(fit[:, None], local, 0.0)
-    circle = jnp.concatenate([local, jnp.where(fit, radius, 0.0)[:, None]], -1)
+    fit, local, rho = kasa_circle(segs.mask, n, moments)
+    radius = jnp.where(fit, rho, jnp.inf)
+    circle = jnp.concatenate([local, rho[:, None]], -1)
     circle = circle[jnp.minimum(ids, S - 1)]                  # one gather: [B, 3]
     resid = _sqrt0(jnp.sum((u - circle[:, :2]) ** 2, -1)) - circle[:, 2]
     circularity = jnp.where(fit, _sqrt0(total(resid ** 2) / safe_n), jnp.inf)
@@ -526,6 +516,33 @@ def _features(xy, segs):
         linearity=jnp.where(m1, linearity, 0.0), radius=radius,
         circle_center=jnp.where(m1[:, None], mean + local, zero), circularity=circularity,
         position=jnp.where(m1[:, None], position, zero), mask=m1)
+
+
+def kasa_circle(mask: Array, n: Array, moments: Array) -> tuple[Array, Array, Array]:
+    """Kasa's circle fit of each segment from its centred moments (see `features`).
+
+    Args:
+      mask: [S] segments; n: [S] point counts (float).
+      moments: [S, 6] sums over the points of :math:`u^2, v^2, uv, uz, vz, z` with
+        :math:`(u, v)` a point minus the segment mean and :math:`z = u^2 + v^2`.
+
+    Returns:
+      ``(fit [S] bools, centre [S, 2] relative to the mean, radius [S])``; the fit is
+      undefined (centre and radius 0) for fewer than 3 points or (numerically) collinear ones.
+    """
+    suu, svv, suv, suz, svz, sz = (moments[:, k] for k in range(6))
+    half_tr = 0.5 * (suu + svv)
+    det = suu * svv - suv ** 2
+    fit = mask & (n >= 3) & (det > 1e-6 * jnp.maximum(half_tr, 1e-30) ** 2)
+    safe_det = jnp.where(fit, det, 1.0)
+    D = -(svv * suz - suv * svz) / safe_det
+    E = -(suu * svz - suv * suz) / safe_det
+    F = -sz / jnp.maximum(n, 1.0)
+    rho_sq = 0.25 * (D * D + E * E) - F
+    fit = fit & (rho_sq > 0)
+    rho = jnp.where(fit, jnp.sqrt(jnp.where(fit, rho_sq, 1.0)), 0.0)
+    centre = jnp.where(fit[:, None], jnp.stack([-0.5 * D, -0.5 * E], -1), 0.0)
+    return fit, centre, rho
 
 
 def _pair(xy, mask, params, P, prev_legs, compatible=None):

@@ -17,6 +17,7 @@ from scipy.optimize import linear_sum_assignment
 from jaxtrack.io import bags, leg_dataset
 from jaxtrack.perception import leg_features, legs
 from sims.following import lidar
+from tests.perception import references
 
 CFG = lidar.LaserConfig()
 ANGLES32 = np.asarray(lidar.beam_angles(CFG), np.float32)
@@ -26,7 +27,6 @@ CAP = leg_dataset.DEFAULT_SEGMENTS
 NC, NW = 8, 3                      # circle and wall capacity of the simulated scenes
 LEG_R = 0.055
 
-_cast = jax.jit(lidar.cast)
 _segment = jax.jit(legs.segment, static_argnames=("max_segments",))
 _compute = jax.jit(leg_features.compute)
 
@@ -42,24 +42,9 @@ def _polar(r, bearing):
 def _ranges(rng, legs_xy=(), posts=(), walls=(), noise=0.005):
     """One scan [B] float32 of circles (legs of radius LEG_R, posts (xy, radius)) and walls,
     misses inf."""
-    centres = np.zeros((NC, 2))
-    radii = np.full(NC, 0.05)
-    cmask = np.zeros(NC, bool)
     circles = [(np.asarray(c), LEG_R) for c in legs_xy] + [(np.asarray(c), r) for c, r in posts]
-    for i, (c, r) in enumerate(circles):
-        centres[i], radii[i], cmask[i] = c, r, True
-    ends = np.zeros((NW, 2, 2))
-    ends[:, 1, 0] = 1.0
-    wmask = np.zeros(NW, bool)
-    for i, w in enumerate(walls):
-        ends[i], wmask[i] = w, True
-    r = np.asarray(_cast(jnp.zeros(3), jnp.asarray(ANGLES32, jnp.float64),
-                         lidar.Circles(jnp.asarray(centres), jnp.asarray(radii),
-                                       jnp.asarray(cmask)),
-                         lidar.Walls(jnp.asarray(ends), jnp.asarray(wmask)), RMAX))
-    hit = r < RMAX
-    r = np.where(hit, r + noise * rng.standard_normal(B), np.inf)
-    return r.astype(np.float32)
+    return references.laser_scan(rng, ANGLES32, circles, walls, RMAX, num_circles=NC,
+                                 num_walls=NW, noise=noise)
 
 
 def _random_scene(rng, legs_max=3, posts_max=3, walls_max=2):

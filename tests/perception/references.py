@@ -139,3 +139,41 @@ def leg_features(xy, valid, first, last, mask, max_radius=10.0, max_gap=100.0):
                               regularity, mean_curv, mean_turn, gap_before, gap_after,
                               float(np.linalg.norm(c))]))
     return np.array(rows)
+
+
+def laser_scan(rng, angles, circles, walls, max_range, *, num_circles, num_walls,
+               noise=0.005):
+    """One simulated scan [B] float32 (misses inf, Gaussian range noise) from a laser at the
+    origin: ``circles`` [(xy, radius)] and ``walls`` [((x0, y0), (x1, y1))], padded to fixed
+    capacities so that the caster compiles once per capacity."""
+    import jax.numpy as jnp
+
+    from sims.following import lidar
+
+    centres, radii = np.zeros((num_circles, 2)), np.full(num_circles, 0.05)
+    cmask = np.zeros(num_circles, bool)
+    for i, (c, r) in enumerate(circles):
+        centres[i], radii[i], cmask[i] = c, r, True
+    ends = np.tile([[0.0, 0.0], [1.0, 0.0]], (num_walls, 1, 1))
+    wmask = np.zeros(num_walls, bool)
+    for i, w in enumerate(walls):
+        ends[i], wmask[i] = w, True
+    r = np.asarray(_cast()(jnp.zeros(3), jnp.asarray(angles, jnp.float64),
+                           lidar.Circles(jnp.asarray(centres), jnp.asarray(radii),
+                                         jnp.asarray(cmask)),
+                           lidar.Walls(jnp.asarray(ends), jnp.asarray(wmask)), max_range))
+    hit = r < max_range
+    return np.where(hit, r + noise * rng.standard_normal(r.shape), np.inf).astype(np.float32)
+
+
+_CAST = []
+
+
+def _cast():
+    import jax
+
+    from sims.following import lidar
+
+    if not _CAST:
+        _CAST.append(jax.jit(lidar.cast))
+    return _CAST[0]

@@ -4,8 +4,6 @@ errors with exit code 2 for every bad argument, found before any work."""
 
 import sys
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -16,13 +14,13 @@ from jaxtrack.io import bags, leg_dataset  # noqa: E402
 from jaxtrack.perception import leg_classifier  # noqa: E402
 from sims import cli  # noqa: E402
 from sims.following import lidar  # noqa: E402
+from tests.perception import references  # noqa: E402
 
 CFG = lidar.LaserConfig()
 ANGLES = np.asarray(lidar.beam_angles(CFG), np.float32)     # 667 beams, as the other tests
 RMAX = CFG.max_range
 T = 12
 SCAN, LABELS = "/training_scan", "/leg_cluster_positions"
-_cast = jax.jit(lidar.cast)
 
 
 def _polar(r, bearing):
@@ -31,17 +29,7 @@ def _polar(r, bearing):
 
 def _scan(rng, circles, walls):
     """One scan (float32, misses inf) of circles [(xy, radius)] and walls, up to 5 and 2."""
-    centres, radii, cmask = np.zeros((5, 2)), np.full(5, 0.05), np.zeros(5, bool)
-    for i, (c, r) in enumerate(circles):
-        centres[i], radii[i], cmask[i] = c, r, True
-    ends, wmask = np.tile([[0.0, 0.0], [1.0, 0.0]], (2, 1, 1)), np.zeros(2, bool)
-    for i, w in enumerate(walls):
-        ends[i], wmask[i] = w, True
-    r = np.asarray(_cast(jnp.zeros(3), jnp.asarray(ANGLES, jnp.float64),
-                         lidar.Circles(jnp.asarray(centres), jnp.asarray(radii),
-                                       jnp.asarray(cmask)),
-                         lidar.Walls(jnp.asarray(ends), jnp.asarray(wmask)), RMAX))
-    return np.where(r < RMAX, r + 0.005 * rng.standard_normal(r.shape), np.inf).astype(np.float32)
+    return references.laser_scan(rng, ANGLES, circles, walls, RMAX, num_circles=5, num_walls=2)
 
 
 def _laser(ranges, t0):
