@@ -1,8 +1,13 @@
-"""Test configuration: float64 on, and a persistent compilation cache inside the clone (for
-the test processes and the processes they start).
+"""Test configuration: float64 on, and, with ``JAXTRACK_TEST_CACHE=1``, a persistent
+compilation cache inside the clone (for the test processes and the processes they start).
 
 x64 is enabled so that references (filterpy, scipy, closed forms) can be matched to 1e-9;
 float32 tests cast their inputs explicitly.
+
+The cache is off by default: on a fresh clone (CI) it only saves the compilations that fresh
+processes repeat, and writing it serialises every executable, which once aborted a test
+process inside XLA:CPU's ``serialize`` (jaxlib 0.10.2, the IMM tracker's scan). Turn it on
+for repeated local runs.
 """
 
 import os
@@ -14,12 +19,13 @@ import pytest
 
 CACHE = str(Path(__file__).resolve().parent.parent / ".jax_cache")
 jax.config.update("jax_enable_x64", True)
-jax.config.update("jax_compilation_cache_dir", CACHE)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-# The processes the tests start (scene runs in fresh processes, the command line, notebook
-# kernels) share the cache: several compile the same scene functions, and only the first pays.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", CACHE)
-os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+if os.environ.get("JAXTRACK_TEST_CACHE", "0") not in ("", "0"):
+    jax.config.update("jax_compilation_cache_dir", CACHE)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # The processes the tests start (scene runs in fresh processes, the command line, notebook
+    # kernels) share the cache: several compile the same scene functions; the first pays.
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", CACHE)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 # py-motmetrics 1.4 (a reference of the metric tests) calls ``np.asfarray``, which NumPy 2
 # removed, in ``iou_matrix`` and ``norm2squared_matrix``.
