@@ -122,7 +122,7 @@ def relative(a: Array, b: Array) -> Array:
 
 
 def safe_sqrt(x: Array) -> Array:
-    """:math:`\sqrt{x}` for :math:`x \ge 0`, 0 for :math:`x \le 0`, with a zero (not NaN)
+    r""":math:`\sqrt{x}` for :math:`x \ge 0`, 0 for :math:`x \le 0`, with a zero (not NaN)
     gradient at 0 (see `safe_norm`): sums of squares that are 0 for degenerate inputs (a
     one-point laser segment's width and scatter) stay differentiable.
 

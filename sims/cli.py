@@ -103,7 +103,13 @@ def main(argv: list[str] | None = None) -> int:
                                        "writes tracks.csv and top_view.png")
     trk.add_argument("--bag", type=Path, required=True,
                      help=".bag file or ROS 2 bag directory")
-    trk.add_argument("--laser-topic", required=True, help="sensor_msgs/LaserScan topic")
+    trk.add_argument("--laser-topic", required=True, nargs="+",
+                     help="sensor_msgs/LaserScan topic; several topics (one per laser of the "
+                          "robot) are fused, the first one's scans being the frames")
+    trk.add_argument("--laser-mount", nargs=3, type=float, action="append", default=None,
+                     metavar=("X", "Y", "YAW"),
+                     help="a laser's pose on the robot (m, m, rad), once per --laser-topic, in "
+                          "the same order (default: at the origin, facing ahead)")
     trk.add_argument("--detections-topic", default=None,
                      help="geometry_msgs/PoseArray or people_msgs/PositionMeasurementArray "
                           "topic (robot frame)")
@@ -189,6 +195,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--bag {args.bag} does not exist")
         if args.odom_topic and args.tf_frames:
             parser.error("give --odom-topic or --tf-frames, not both")
+        if args.laser_mount is not None:
+            if len(args.laser_mount) != len(args.laser_topic):
+                parser.error(f"{len(args.laser_mount)} --laser-mount for "
+                             f"{len(args.laser_topic)} --laser-topic")
+            if not all(math.isfinite(v) for m in args.laser_mount for v in m):
+                parser.error("--laser-mount values must be finite")
         if not (math.isfinite(args.gt_threshold) and args.gt_threshold > 0):
             parser.error(f"--gt-threshold must be positive; got {args.gt_threshold}")
         if args.target_only and not args.gt_topic:
@@ -207,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         from jaxtrack.io.replay import track_bag
 
         try:
-            track_bag(args.bag, args.laser_topic, args.out,
+            topics = args.laser_topic[0] if len(args.laser_topic) == 1 else args.laser_topic
+            track_bag(args.bag, topics, args.out, laser_mounts=args.laser_mount,
                       detections_topic=args.detections_topic, odom_topic=args.odom_topic,
                       estimator=args.estimator, chunk=args.chunk,
                       max_detections=args.max_detections, seed=args.seed,

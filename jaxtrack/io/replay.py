@@ -66,7 +66,7 @@ class _Static(NamedTuple):
     pan: bool = False
 
 
-def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
+def track(laser, odometry: bags.Odometry | None = None,
           detections: bags.PersonDetections | None = None, estimator="gnn", *,
           chunk: int = 64, key: Array | None = None, user_xy=None, params=None,
           leg_params: legs.LegParams | None = None, laser_mount=(0.0, 0.0),
@@ -78,7 +78,11 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     """Run the sensing step and a user estimator over recorded scans, ``chunk`` frames at a time.
 
     Args:
-      laser: `bags.LaserScans` (T scans; rows with ``valid`` False are skipped).
+      laser: `bags.LaserScans` (T scans; rows with ``valid`` False are skipped), or a list of
+        them, one per laser of the robot, fused in each frame (`sensing.sense` with several
+        mounts): the first laser's scans are the frames, each other laser contributes its
+        scan nearest in time within half its own period (none otherwise), and ``laser_mount``
+        then lists each laser's ``(x, y, yaw)`` on the robot.
       odometry: `bags.Odometry` or None (identity pose: the tracks are in the laser's frame).
       detections: `bags.PersonDetections` in the robot frame, or None.
       estimator: a name of `jaxtrack.tracking.user.CONFIGS` ("gnn", "jpda", "nn_jpda", "pf",
@@ -89,8 +93,10 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
         nearest to the robot in front of it (else 1 m ahead).
       params: the estimator's parameters (default its ``params`` at the scans' period).
       leg_params, laser_mount, max_segments, max_laser_people: the leg detector and the laser's
-        (x, y) on the robot (`sensing.SensingConfig`). By default ``leg_params`` takes its range
-        limits from the scans (``range_min`` / ``range_max`` of the messages).
+        (x, y) or (x, y, yaw) on the robot (`sensing.SensingConfig`). By default ``leg_params``
+        takes its range limits from the scans (``range_min`` / ``range_max`` of the
+        messages; with several lasers, the widest, each laser's own beyond its limits being
+        masked).
       detector: ``"learned"`` (the shipped leg classifier, trained on real scans),
         ``"geometric"`` or a model file of ``jaxtrack train-legs`` (`sensing.SensingConfig`).
         With a learned detector, a leg-tracked estimator named by string (``"pf+legs"``,
@@ -115,19 +121,39 @@ def track(laser: bags.LaserScans, odometry: bags.Odometry | None = None,
     est = user.build(config)
     if int(chunk) < 1:
         raise ValueError(f"chunk must be >= 1; got {chunk}")
+    lasers = None
+    if not isinstance(laser, bags.LaserScans):
+        lasers = list(laser)
+        if not lasers or not all(isinstance(x, bags.LaserScans) for x in lasers):
+            raise TypeError("laser must be a bags.LaserScans or a non-empty list of them")
+        mounts = ([(0.0, 0.0, 0.0)] * len(lasers) if tuple(laser_mount) == (0.0, 0.0)
+                  else [tuple(map(float, m)) for m in laser_mount])
+        if len(mounts) != len(lasers):
+            raise ValueError(f"{len(mounts)} laser mounts for {len(lasers)} lasers")
+        laser_mount = tuple(mounts)
+        laser, ranges_all, angles_all, limits = _fuse_scans(lasers)
     inp = _inputs(laser, odometry, detections, pan, pan_joint)
     T, dt = len(inp.times), inp.dt
     np_dtype = np.dtype(jnp.dtype(dtype).name)
     if params is None:
         params = est.params(dt=dt, dtype=dtype)
     key = jax.random.PRNGKey(0) if key is None else key
-    scfg, leg_params = _sensing_config(laser, leg_params, max_segments, max_laser_people,
-                                       laser_mount, static_radius, detector)
+    scfg, leg_params = _sensing_config(limits if lasers else laser, leg_params, max_segments,
+                                       max_laser_people, laser_mount, static_radius, detector)
     static_map = _static_map(static_xy, dtype)
     static = _Static(config, scfg, dt, pan is not None)
-    ranges = np.where(np.isfinite(inp.ranges), inp.ranges, leg_params.max_range).astype(np_dtype)
+    if lasers:
+        rows = np.flatnonzero(np.asarray(laser.valid, bool))
+        ranges = np.where(np.isfinite(ranges_all[rows]), ranges_all[rows],
+                          leg_params.max_range).astype(np_dtype)
+        inp = inp._replace(angles=angles_all)
+        first = (ranges[0, 0], angles_all[0].astype(np_dtype))
+    else:
+        ranges = np.where(np.isfinite(inp.ranges), inp.ranges,
+                          leg_params.max_range).astype(np_dtype)
+        first = (ranges[0], inp.angles.astype(np_dtype))
     if user_xy is None:
-        user_xy = _first_user(ranges[0], inp.angles.astype(np_dtype), inp.pose[0], scfg)
+        user_xy = _first_user(*first, inp.pose[0], scfg)
     run = _chunk_runner(static, int(chunk))
     pose0 = jnp.asarray(inp.pose[0], dtype)
     prior = user.Prior(jnp.asarray(user_xy, dtype), pose0)
@@ -169,6 +195,9 @@ def track_batch(lasers, odometries=None, estimator="gnn", *, chunk: int = 64,
     lasers = list(lasers)
     if not lasers:
         return []
+    if not all(isinstance(x, bags.LaserScans) for x in lasers):
+        raise TypeError("track_batch replays one bags.LaserScans per recording (fuse several "
+                        "lasers of one robot with track)")
     odometries = [None] * len(lasers) if odometries is None else list(odometries)
     if len(odometries) != len(lasers):
         raise ValueError(f"{len(odometries)} odometries for {len(lasers)} recordings")
@@ -311,9 +340,50 @@ def _sensing_config(laser, leg_params, max_segments, max_laser_people, laser_mou
                                     min_range=max(float(laser.range_min), 0.0))
     scfg = sensing.SensingConfig(legs.LegParams(*(float(x) for x in leg_params)),
                                  int(max_segments), int(max_laser_people),
-                                 tuple(map(float, laser_mount)), float(static_radius),
+                                 _mount_tuple(laser_mount), float(static_radius),
                                  detector=str(detector))
     return scfg, leg_params
+
+
+def _mount_tuple(mount):
+    if len(mount) and isinstance(mount[0], (tuple, list, np.ndarray)):
+        return tuple(tuple(map(float, m)) for m in mount)
+    return tuple(map(float, mount))
+
+
+class _Limits(NamedTuple):
+    range_min: float
+    range_max: float
+
+
+def _fuse_scans(lasers):
+    """Several lasers on the first one's clock: ``(first laser, ranges [T, N, B] with NaN
+    where a laser has no valid return or no scan within half its period, angles [N, B],
+    widest range limits)``. Beam counts may differ: shorter scans are padded with NaN."""
+    B = max(lz.angles.shape[0] for lz in lasers)
+    base = lasers[0]
+    times = np.asarray(base.times, np.float64)
+    T = times.shape[0]
+    ranges = np.full((T, len(lasers), B), np.nan, np.float32)
+    angles = np.zeros((len(lasers), B), np.float32)
+    for i, lz in enumerate(lasers):
+        n = lz.angles.shape[0]
+        a = np.asarray(lz.angles, np.float32)
+        angles[i, :n], angles[i, n:] = a, a[-1]
+        r = np.where(np.asarray(lz.mask, bool), np.asarray(lz.ranges, np.float32), np.nan)
+        if i == 0:
+            ranges[:, 0, :n] = r
+            continue
+        ok = np.asarray(lz.valid, bool)
+        if not ok.any():
+            continue
+        lt = np.asarray(lz.times, np.float64)[ok]
+        period = float(np.median(np.diff(lt))) if lt.size > 1 else np.inf
+        j = _align(lt, times, 0.5 * period)
+        ranges[:, i, :n] = np.where((j >= 0)[:, None], r[ok][np.maximum(j, 0)], np.nan)
+    limits = _Limits(min(max(float(lz.range_min), 0.0) for lz in lasers),
+                     max(float(lz.range_max) for lz in lasers))
+    return base, ranges, angles, limits
 
 
 def _static_map(static_xy, dtype):
@@ -349,12 +419,16 @@ _detect = jax.jit(legs.detect,
 
 
 def _first_user(ranges, angles, pose, cfg: sensing.SensingConfig):
-    """The laser person nearest to the robot with x > 0 (robot frame), else 1 m ahead."""
+    """The laser person nearest to the robot with x > 0 (robot frame), else 1 m ahead (the
+    first laser's people, with several)."""
     det = _detect(jnp.asarray(ranges), jnp.asarray(angles), cfg.leg_params,
                   max_segments=cfg.max_segments, max_people=cfg.max_people,
                   classifier=leg_classifier.resolve(cfg.detector),
                   threshold=cfg.leg_threshold, max_candidates=cfg.max_leg_candidates)
-    xy = np.asarray(det.people.xy) + np.asarray(cfg.laser_mount)
+    mount = np.asarray(cfg.mounts[0], np.float64)
+    c, s = np.cos(mount[2]), np.sin(mount[2])
+    p = np.asarray(det.people.xy, np.float64)
+    xy = mount[:2] + p @ np.array([[c, s], [-s, c]])
     ok = np.asarray(det.people.mask) & (xy[:, 0] > 0)
     rel = (xy[np.argmin(np.where(ok, np.sum(xy**2, -1), np.inf))] if ok.any()
            else np.array([1.0, 0.0]))
@@ -402,7 +476,7 @@ def _batch_runner(static: _Static, chunk: int):
     return jax.jit(jax.vmap(_chunk_fn(static), in_axes=(0, 0, None, 0, 0, None, 0)))
 
 
-def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None,
+def track_bag(bag, laser_topic, out, *, detections_topic: str | None = None,
               odom_topic: str | None = None, estimator: str = "gnn", chunk: int = 64,
               max_detections: int = 16, seed: int = 0, time_source: str = "header",
               static_points=None, pan_topic: str | None = None,
@@ -410,7 +484,7 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
               animate: bool = False, tf_frames: tuple[str, str] | None = None,
               gt_topic: str | None = None, gt_threshold: float = 0.5,
               target_only: bool = False, max_gt_people: int = 32,
-              stream=None) -> dict:
+              laser_mounts=None, stream=None) -> dict:
     """``jaxtrack track``: read a bag, replay `track`, write ``tracks.csv`` (MOTChallenge
     layout, `jaxtrack.io.trajectories.write_mot_csv`) and ``top_view.png`` into ``out``.
     ``static_points``: a text file of ``x y`` rows (odometry frame), leg-like fixed objects
@@ -422,7 +496,9 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     positions in the tracks' frame: `bags.read_people`), written as ``gt.csv`` aligned to the
     scans (nearest message within half a frame) and scored against the tracks with
     `trajectories.evaluate_files` (``gt_threshold`` m, ``target_only``); the summary is printed
-    and returned under ``"summary"``.
+    and returned under ``"summary"``. ``laser_topic``: one topic, or several (one per laser of
+    the robot, fused: `track`), with ``laser_mounts`` their ``(x, y, yaw)`` on the robot
+    (default all at the origin, facing ahead); the animation draws the first laser's scans.
 
     Returns ``{"tracks": Tracks, "rows": CSV rows written, "csv": path, "plot": path,
     "reports": [bags.BagReport]}``.
@@ -436,7 +512,21 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
 
     stream = sys.stdout if stream is None else stream
 
-    laser = bags.read_laser(bag, laser_topic, time_source=time_source)
+    topics = [laser_topic] if isinstance(laser_topic, str) else list(laser_topic)
+    if not topics:
+        raise ValueError("no laser topic")
+    scans = [bags.read_laser(bag, t, time_source=time_source) for t in topics]
+    laser = scans[0]
+    mounts = laser_mounts
+    if len(scans) > 1:
+        mounts = [(0.0, 0.0, 0.0)] * len(scans) if laser_mounts is None else list(laser_mounts)
+        if len(mounts) != len(scans):
+            raise ValueError(f"{len(mounts)} laser mounts for {len(scans)} laser topics")
+    elif laser_mounts is not None:
+        mounts = list(laser_mounts)
+        if len(mounts) != 1:
+            raise ValueError(f"{len(mounts)} laser mounts for 1 laser topic")
+        mounts = tuple(mounts[0])
     if odom_topic and tf_frames:
         raise ValueError("give odom_topic or tf_frames, not both")
     odom = (bags.read_odometry(bag, odom_topic, time_source=time_source) if odom_topic
@@ -448,8 +538,10 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
     static_xy = (np.loadtxt(static_points, ndmin=2).reshape(-1, 2)
                  if static_points is not None else None)
     t0 = time.perf_counter()
-    tracks = track(laser, odom, det, estimator, chunk=chunk, key=jax.random.PRNGKey(seed),
-                   static_xy=static_xy, pan=pan, pan_joint=pan_joint, detector=detector)
+    tracks = track(scans if len(scans) > 1 else laser, odom, det, estimator, chunk=chunk,
+                   key=jax.random.PRNGKey(seed), static_xy=static_xy, pan=pan,
+                   pan_joint=pan_joint, detector=detector,
+                   laser_mount=(0.0, 0.0) if mounts is None else mounts)
     seconds = time.perf_counter() - t0
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -472,7 +564,7 @@ def track_bag(bag, laser_topic: str, out, *, detections_topic: str | None = None
         summary = trajectories.evaluate_files(out / "gt.csv", csv, gt_threshold, "mot",
                                               target_only=target_only)
         print(trajectories.format_summary({Path(bag).name: summary}), file=stream)
-    reports = [r.report for r in (laser, odom, det, pan, gt) if r is not None]
+    reports = [r.report for r in (*scans, odom, det, pan, gt) if r is not None]
     n_ids = len(np.unique(tracks.ids[tracks.mask])) if tracks.mask.any() else 0
     print(f"{len(tracks.frames)} frames ({tracks.times[-1] - tracks.times[0]:.1f} s) replayed "
           f"with {estimator} in {seconds:.1f} s (compilation included): {n_ids} track ids, "

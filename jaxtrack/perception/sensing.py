@@ -31,6 +31,7 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -54,7 +55,11 @@ class SensingConfig:
       leg_params: `legs.LegParams` of the leg detector; its ``min_range`` / ``max_range`` also
         decide which returns are obstacle points.
       max_segments, max_people: leg-detector capacities (scan segments, laser people).
-      laser_mount: (x, y) of the laser in the robot frame (it faces the robot's heading).
+      laser_mount: the laser's pose on the robot: ``(x, y)`` (facing the robot's heading) or
+        ``(x, y, yaw)``; or, for several lasers fused in one step, a tuple of such mounts, one
+        per laser (`sense` then takes ``[N, B]`` ranges and angles).
+      merge_radius: with several lasers, a leg or a person another laser already detected
+        within this distance (m) is the same one, seen twice where the fields of view overlap.
       static_radius: laser people within this (m) of a fixed leg of the `StaticMap` are dropped.
       wall_distance: laser people within this (m) of a wall of the `StaticMap` are dropped.
       detector: which segments are legs: ``"geometric"`` (the thresholds of ``leg_params``),
@@ -81,6 +86,7 @@ class SensingConfig:
     detector: str = "geometric"
     leg_threshold: float = 0.05
     max_leg_candidates: int = 16
+    merge_radius: float = 0.2
 
     def __post_init__(self):
         if self.detector not in ("geometric", "learned") and not Path(self.detector).is_file():
@@ -95,8 +101,36 @@ class SensingConfig:
                              f"{self.max_segments}, {self.max_people}")
         if not (self.static_radius >= 0 and self.wall_distance >= 0):
             raise ValueError("static_radius and wall_distance must be >= 0")
-        if len(self.laser_mount) != 2:
-            raise ValueError(f"laser_mount must be (x, y); got {self.laser_mount!r}")
+        self.mounts  # noqa: B018  (validates laser_mount)
+        if not self.merge_radius >= 0:
+            raise ValueError(f"merge_radius must be >= 0; got {self.merge_radius}")
+
+    @property
+    def multi(self) -> bool:
+        """Several lasers: ``laser_mount`` is a tuple of mounts."""
+        return len(self.laser_mount) > 0 and isinstance(self.laser_mount[0], (tuple, list))
+
+    @property
+    def mounts(self) -> tuple:
+        """The mounts as ``((x, y, yaw), ...)``, one per laser."""
+        given = self.laser_mount if self.multi else (self.laser_mount,)
+        if not given:
+            raise ValueError("laser_mount holds no laser")
+        out = []
+        for m in given:
+            try:
+                m = tuple(float(v) for v in m)
+            except (TypeError, ValueError):
+                m = ()
+            if len(m) not in (2, 3) or not all(map(math.isfinite, m)):
+                raise ValueError(f"a laser mount is (x, y) or (x, y, yaw), finite; got "
+                                 f"{self.laser_mount!r}")
+            out.append(m + (0.0,) * (3 - len(m)))
+        return tuple(out)
+
+    @property
+    def num_lasers(self) -> int:
+        return len(self.mounts)
 
 
 jax.tree_util.register_static(SensingConfig)
@@ -178,15 +212,20 @@ def empty_map(dtype=jnp.float32) -> StaticMap:
 
 
 def init(config: SensingConfig, dtype=jnp.float32) -> SensingState:
-    """The sensing state before the first scan (no previous legs)."""
-    S = config.max_segments
+    """The sensing state before the first scan (no previous legs; ``max_segments`` per
+    laser)."""
+    S = config.max_segments * config.num_lasers
     return SensingState(jnp.zeros((S, 2), dtype), jnp.zeros(S, bool))
 
 
 def sensor_pose(robot_pose: Array, mount) -> Array:
     """Pose [3] of a sensor mounted at ``mount`` (x, y) on a robot at ``robot_pose`` [3],
-    facing the robot's heading (no wrapping: the heading is the robot's, bit for bit)."""
-    xy = geometry.from_frame(robot_pose, jnp.asarray(mount, robot_pose.dtype))
+    facing the robot's heading (no wrapping: the heading is the robot's, bit for bit), or at
+    ``mount`` (x, y, yaw) [3], turned by yaw (not wrapped either)."""
+    if len(mount) == 3 and not (isinstance(mount, tuple) and float(mount[2]) == 0.0):
+        m = jnp.asarray(mount, robot_pose.dtype)
+        return jnp.concatenate([geometry.from_frame(robot_pose, m[:2]), robot_pose[2:] + m[2:]])
+    xy = geometry.from_frame(robot_pose, jnp.asarray(mount[:2], robot_pose.dtype))
     return jnp.concatenate([xy, robot_pose[2:]])
 
 
@@ -206,7 +245,10 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
     Args:
       config: `SensingConfig`.
       state: `SensingState` of the previous frame.
-      ranges: [B] laser ranges; angles: [B] beam angles (sensor frame).
+      ranges: [B] laser ranges; angles: [B] beam angles (sensor frame). With several lasers
+        (``config.laser_mount`` a tuple of mounts): [N, B] each, one scan per laser (pad
+        shorter scans with NaN ranges); the outputs then hold every laser's, concatenated
+        (laser people [N * max_people], legs [N * max_segments], returns [N * B]).
       odometry: `Odometry` at this frame.
       rgbd_xy: [K, 2] RGB-D person detections in the robot frame; rgbd_mask: [K];
         rgbd_colour: [K, 3] colour features, or None (zeros).
@@ -217,14 +259,43 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
     Returns:
       ``(SensingState, Sensed)``.
     """
-    _checks.check_shape("ranges", ranges, (None,), "[B] ranges")
-    _checks.check_shape("angles", angles, (_checks.shape_of(ranges)[0],), "one angle per beam")
+    if config.multi:
+        N = config.num_lasers
+        _checks.check_shape("ranges", ranges, (N, None), f"[{N}, B] ranges, one scan per laser")
+        _checks.check_shape("angles", angles, _checks.shape_of(ranges), "one angle per beam")
+    else:
+        _checks.check_shape("ranges", ranges, (None,), "[B] ranges")
+        _checks.check_shape("angles", angles, (_checks.shape_of(ranges)[0],),
+                            "one angle per beam")
     _checks.check_shape("rgbd_xy", rgbd_xy, (None, 2), "[K, 2] detections")
     _checks.check_shape("rgbd_mask", rgbd_mask, (_checks.shape_of(rgbd_xy)[0],))
     dtype = odometry.pose.dtype
     odom = odometry.pose
-    mount = config.laser_mount
+    if config.multi:
+        laser = _fused_lasers(config, state, ranges, angles, odom, map_pose)
+    else:
+        laser = _one_laser(config, state, ranges, angles, odom, map_pose, config.laser_mount)
+    people, people_map, people_mask, legs_odom, legs_map, legs_mask, scores, returns, valid = laser
+    laser_mask = _off_map(config, static_map, people_map, people_mask)
+    legs_shown = _off_map(config, static_map, legs_map, legs_mask)
+    K = rgbd_xy.shape[0]
+    colour = jnp.zeros((K, 3), dtype) if rgbd_colour is None else rgbd_colour.astype(dtype)
+    sensed = Sensed(people, laser_mask, people_map,
+                    geometry.from_frame(odom, rgbd_xy.astype(dtype)), rgbd_mask, colour, odom,
+                    odometry.increment[0] / period, odometry.increment[2] / period, returns,
+                    valid, legs_xy=legs_odom, legs_mask=legs_shown,
+                    legs_score=scores.astype(dtype))
+    new = SensingState(legs_odom, legs_mask)
+    return new, sensed
+
+
+def _one_laser(config, state, ranges, angles, odom, map_pose, mount):
+    """One laser's people and leg candidates (odometry and map frames) and its returns (robot
+    frame): ``(people, people_map, people_mask, legs, legs_map, legs_mask, scores, returns,
+    valid)``."""
+    dtype = odom.dtype
     in_odom = sensor_pose(odom, mount)
+    in_map = sensor_pose(map_pose, mount)
     det = legs.detect(ranges, angles, config.leg_params, max_segments=config.max_segments,
                       max_people=config.max_people,
                       prev_legs=(geometry.to_frame(in_odom, state.legs_xy), state.legs_mask),
@@ -232,22 +303,38 @@ def sense(config: SensingConfig, state: SensingState, ranges: Array, angles: Arr
                       threshold=config.leg_threshold,
                       max_candidates=config.max_leg_candidates)
     people = det.people.xy.astype(dtype)
-    laser_xy = geometry.from_frame(in_odom, people)
-    laser_map = geometry.from_frame(sensor_pose(map_pose, mount), people)
-    laser_mask = _off_map(config, static_map, laser_map, det.people.mask)
-    legs_odom = geometry.from_frame(in_odom, det.legs_xy.astype(dtype))
-    legs_map = geometry.from_frame(sensor_pose(map_pose, mount), det.legs_xy.astype(dtype))
-    legs_mask = _off_map(config, static_map, legs_map, det.legs_mask)
-    K = rgbd_xy.shape[0]
-    colour = jnp.zeros((K, 3), dtype) if rgbd_colour is None else rgbd_colour.astype(dtype)
-    returns = det.points + jnp.asarray(mount, dtype)
-    sensed = Sensed(laser_xy, laser_mask, laser_map,
-                    geometry.from_frame(odom, rgbd_xy.astype(dtype)), rgbd_mask, colour, odom,
-                    odometry.increment[0] / period, odometry.increment[2] / period, returns,
-                    det.valid, legs_xy=legs_odom, legs_mask=legs_mask,
-                    legs_score=det.scores.astype(dtype))
-    new = SensingState(legs_odom, det.legs_mask)
-    return new, sensed
+    leg_xy = det.legs_xy.astype(dtype)
+    if len(mount) == 2 or mount[2] == 0.0:
+        returns = det.points + jnp.asarray(mount[:2], dtype)
+    else:
+        returns = geometry.from_frame(jnp.asarray(mount, dtype), det.points.astype(dtype))
+    return (geometry.from_frame(in_odom, people), geometry.from_frame(in_map, people),
+            det.people.mask, geometry.from_frame(in_odom, leg_xy),
+            geometry.from_frame(in_map, leg_xy), det.legs_mask, det.scores, returns, det.valid)
+
+
+def _fused_lasers(config, state, ranges, angles, odom, map_pose):
+    """Several lasers at once: each detects on its own scan (the previous frame's fused legs
+    for its motion cue); their people, legs and returns are concatenated, laser by laser, and
+    a leg or person within ``merge_radius`` of one an earlier laser detected is dropped (one
+    pass, no chains: where fields of view overlap the same leg is seen twice)."""
+    outs = [_one_laser(config, state, ranges[i], angles[i], odom, map_pose, m)
+            for i, m in enumerate(config.mounts)]
+    cat = [jnp.concatenate(x) for x in zip(*outs)]
+    people, people_map, people_mask, legs_odom, legs_map, legs_mask, scores, returns, valid = cat
+    P, S = config.max_people, config.max_segments
+    people_mask = people_mask & ~_seen_before(people, people_mask, P, config.merge_radius)
+    legs_mask = legs_mask & ~_seen_before(legs_odom, legs_mask, S, config.merge_radius)
+    return (people, people_map, people_mask, legs_odom, legs_map, legs_mask, scores, returns,
+            valid)
+
+
+def _seen_before(xy, mask, per_laser, radius):
+    """[N * per_laser] points within ``radius`` of a masked point of an earlier laser."""
+    group = jnp.arange(xy.shape[0]) // per_laser
+    d2 = jnp.sum((xy[:, None] - xy[None]) ** 2, -1)
+    earlier = group[None, :] < group[:, None]
+    return jnp.any(earlier & mask[None, :] & (d2 < radius**2), 1)
 
 
 def _off_map(config, static_map, xy_map, mask):

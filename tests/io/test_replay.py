@@ -120,6 +120,44 @@ def test_track_rejects_bad_arguments(recording):
                      detector=DETECTOR)
 
 
+def test_one_laser_fused_with_its_copy_equals_the_laser_alone(recording, written,
+                                                            memory_tracks, tmp_path):
+    # The copy sees every leg and person the laser sees, at the same place: all merged away
+    # (`sensing.SensingConfig.merge_radius`), so the fused replay is the single one. The
+    # copy's clock runs 30 % of a period late: aligned to the same scans.
+    sc, _, (laser, odom, det) = recording
+    furniture = tmp_path / "furniture.txt"
+    np.savetxt(furniture, _furniture(sc))
+    out = replay.track_bag(written["ros1"], ["/scan", "/scan"], tmp_path / "out",
+                           odom_topic="/odom", detections_topic="/people",
+                           max_detections=det.xy.shape[1], chunk=CHUNK,
+                           static_points=furniture, detector=DETECTOR,
+                           laser_mounts=[(0.0, 0.0, 0.0)] * 2, stream=io.StringIO())
+    late = laser._replace(times=laser.times + 0.3 * np.median(np.diff(laser.times)))
+    mem = replay.track([laser, late], odom, det, "gnn", chunk=CHUNK, progress=False,
+                       detector=DETECTOR, static_xy=_furniture(sc),
+                       laser_mount=[(0.0, 0.0, 0.0)] * 2)
+    assert len(out["reports"]) == 4      # two lasers, odometry, detections
+    for got in (out["tracks"], mem):
+        for name in ("ids", "pos", "mask", "user", "user_found"):
+            np.testing.assert_allclose(getattr(got, name), getattr(memory_tracks, name),
+                                       rtol=0, atol=1e-6, err_msg=name)
+    with pytest.raises(ValueError, match="2 laser mounts for 3 lasers"):
+        replay.track([laser] * 3, laser_mount=[(0, 0, 0)] * 2, progress=False)
+    with pytest.raises(TypeError, match="LaserScans"):
+        replay.track([], progress=False)
+    with pytest.raises(TypeError, match="one bags.LaserScans per recording"):
+        replay.track_batch([[laser, laser]], progress=False)
+
+
+def test_cli_track_needs_one_mount_per_laser_topic(written, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["track", "--bag", str(written["ros1"]), "--laser-topic", "/scan", "/scan",
+                  "--laser-mount", "0", "0", "0", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "1 --laser-mount for 2 --laser-topic" in capsys.readouterr().err
+
+
 def test_cli_track_writes_a_mot_csv_and_evaluate_prints_the_summary(recording, written,
                                                                   memory_tracks, tmp_path,
                                                                   capsys):
