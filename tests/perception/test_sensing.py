@@ -75,10 +75,10 @@ def test_front_and_rear_lasers_fused_see_the_people_ahead_and_behind(two_lasers)
         one = sensing.SensingConfig(LP, 32, 4, mount)
         alone = _found(_sense(one, ranges[i], ANGLES)[1])
         assert alone.shape == (1, 2) and np.linalg.norm(alone[0] - expected) < 0.03
-    # Shapes: every laser's capacity, concatenated; four legs; returns in the robot frame.
-    assert sensed.laser_xy.shape == (8, 2) and sensed.legs_xy.shape == (64, 2)
+    # Shapes: one laser's capacity (compacted); four legs; every return, in the robot frame.
+    assert sensed.laser_xy.shape == (4, 2) and sensed.legs_xy.shape == (32, 2)
     assert sensed.returns_xy.shape == (2 * ANGLES.shape[0], 2)
-    assert int(sensed.legs_mask.sum()) == 4 and state.legs_xy.shape == (64, 2)
+    assert int(sensed.legs_mask.sum()) == 4 and state.legs_xy.shape == (32, 2)
     rear_returns = np.asarray(sensed.returns_xy)[ANGLES.shape[0]:][
         np.asarray(sensed.returns_mask)[ANGLES.shape[0]:]]
     assert len(rear_returns) and np.all(rear_returns[:, 0] < -0.2)
@@ -131,3 +131,10 @@ def test_ranges_must_hold_one_scan_per_laser(two_lasers):
         _sense(cfg, ranges[0], ANGLES)
     with pytest.raises(ValueError, match="merge_radius"):
         sensing.SensingConfig(merge_radius=-1.0)
+
+
+def test_beyond_one_lasers_capacity_the_later_lasers_people_are_dropped(two_lasers):
+    _, ranges, _ = two_lasers
+    cfg = sensing.SensingConfig(LP, 32, 1, (FRONT, REAR))
+    found = _found(_sense(cfg, ranges, jnp.stack([ANGLES, ANGLES]))[1])
+    assert found.shape == (1, 2) and np.linalg.norm(found[0] - AHEAD) < 0.03
