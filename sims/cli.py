@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
                                        "writes tracks.csv and top_view.png")
     trk.add_argument("--bag", type=Path, required=True,
                      help=".bag file or ROS 2 bag directory")
-    trk.add_argument("--laser-topic", required=True, nargs="+",
+    trk.add_argument("--laser-topic", default=None, nargs="+",
                      help="sensor_msgs/LaserScan topic; several topics (one per laser of the "
                           "robot) are fused, the first one's scans being the frames")
     trk.add_argument("--laser-mount", nargs=3, type=float, action="append", default=None,
@@ -143,6 +143,27 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--animate", action="store_true",
                      help="also write an animated top view, replay.gif")
     trk.add_argument("--seed", type=int, default=0)
+    trk.add_argument("--depth-topic", default=None,
+                     help="instead of --laser-topic: sensor_msgs/Image depth images (16UC1 / "
+                          "32FC1) of a ceiling camera looking down on a humanoid; writes "
+                          "trajectory.csv")
+    trk.add_argument("--camera-position", nargs=3, type=float, default=None,
+                     metavar=("X", "Y", "Z"), help="with --depth-topic: the camera's optical "
+                                                   "centre (m; Z its height above the floor)")
+    trk.add_argument("--focal", nargs=2, type=float, default=None, metavar=("FX", "FY"),
+                     help="with --depth-topic: focal lengths (pixels)")
+    trk.add_argument("--principal", nargs=2, type=float, default=None, metavar=("CX", "CY"),
+                     help="with --depth-topic: principal point from the image's corner "
+                          "(pixels; ROS CameraInfo K[0,2] + 0.5, K[1,2] + 0.5); default the "
+                          "image centre")
+    trk.add_argument("--start", nargs=3, type=float, default=None,
+                     metavar=("X", "Y", "HEADING"),
+                     help="with --depth-topic: the humanoid's initial pose (default the "
+                          "first image's points, heading 0)")
+    trk.add_argument("--tracker", choices=("pf", "pf3", "ukf"), default="pf",
+                     help="with --depth-topic: the humanoid tracker")
+    trk.add_argument("--max-points", type=int, default=96,
+                     help="with --depth-topic: the highest points the tracker is given")
     trk.add_argument("--out", type=Path, required=True, help="output directory")
     tl = sub.add_parser("train-legs", help="train the learned leg detector (a random forest "
                                            "over scan-segment features) on recorded bags; "
@@ -188,7 +209,11 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--out", type=Path, default=None,
                     help="directory for summary.csv and summary.json")
     args = parser.parse_args(argv)
+    if args.command == "track" and args.depth_topic:
+        return _track_depth(parser, args)
     if args.command == "track":
+        if not args.laser_topic:
+            parser.error("give --laser-topic (laser scans) or --depth-topic (depth images)")
         if args.chunk < 1 or args.max_detections < 1:
             parser.error("--chunk and --max-detections must be positive")
         if not args.bag.exists():
@@ -390,6 +415,43 @@ def _train_legs(parser, args) -> int:
     print(f"decision threshold {report.decision:.3f}: held-out segment precision "
           f"{report.held_out_precision:.3f}, recall {report.held_out_recall:.3f}")
     print(f"wrote {args.out}")
+    return 0
+
+
+def _track_depth(parser, args) -> int:
+    """``jaxtrack track --depth-topic``: a humanoid tracked through ceiling depth images."""
+    if args.laser_topic:
+        parser.error("give --laser-topic or --depth-topic, not both")
+    if args.camera_position is None or args.focal is None:
+        parser.error("--depth-topic needs --camera-position X Y Z and --focal FX FY")
+    values = [*args.camera_position, *args.focal, *(args.principal or ()), *(args.start or ())]
+    if not all(math.isfinite(v) for v in values):
+        parser.error("--camera-position, --focal, --principal and --start must be finite")
+    if not (args.camera_position[2] > 0 and min(args.focal) > 0):
+        parser.error("the camera must be above the floor (Z > 0) with positive focal lengths")
+    if args.chunk < 1 or args.max_points < 1:
+        parser.error("--chunk and --max-points must be positive")
+    if not args.bag.exists():
+        parser.error(f"--bag {args.bag} does not exist")
+    _check_writable(parser, args.out)
+    from jaxtrack.io import bags
+    from jaxtrack.io.depth_replay import track_depth_bag
+
+    try:
+        track_depth_bag(args.bag, args.depth_topic, args.out,
+                        camera_position=tuple(args.camera_position), focal=tuple(args.focal),
+                        principal=tuple(args.principal) if args.principal else None,
+                        start=tuple(args.start) if args.start else None, tracker=args.tracker,
+                        max_points=args.max_points, seed=args.seed, chunk=args.chunk,
+                        time_source=args.time_source)
+    except bags.BagError as err:
+        parser.exit(2, f"jaxtrack track: {err}\n")
+    except ValueError as err:
+        parser.exit(2, f"jaxtrack track: {err}\n")
+    except ImportError as err:
+        if "rosbags" not in str(err):
+            raise
+        parser.exit(2, f"jaxtrack track: {err}\n")
     return 0
 
 

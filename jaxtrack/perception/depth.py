@@ -39,8 +39,9 @@ from jaxtrack.angles import wrap
 
 Array = jax.Array
 
-__all__ = ["RobotModel", "DepthFrame", "PCAHeading", "point_count", "smooth_point_count",
-           "log_likelihood", "fold_half_turn", "pca_heading"]
+__all__ = ["RobotModel", "DepthFrame", "PCAHeading", "CeilingCamera", "back_project",
+           "ceiling_cloud", "point_count", "smooth_point_count", "log_likelihood",
+           "fold_half_turn", "pca_heading"]
 
 
 class RobotModel(NamedTuple):
@@ -100,6 +101,82 @@ class PCAHeading(NamedTuple):
     measured: Array
     accepted: Array
     num_points: Array
+
+
+class CeilingCamera(NamedTuple):
+    """A pinhole depth camera on the ceiling looking straight down (-z), image right along +x
+    and image up along +y of the world (the seed's zenithal set-up).
+
+    Attributes:
+      position: [3] optical centre (x, y, height above the floor), metres.
+      fx, fy: focal lengths (pixels).
+      cx, cy: principal point, in pixel units from the image's top-left *corner* (so that the
+        centre of pixel (i, j) is at (j + 1/2, i + 1/2)); the ``K`` matrix of a ROS
+        ``CameraInfo`` counts from the centre of the first pixel: ``cx = K[0, 2] + 1/2``,
+        ``cy = K[1, 2] + 1/2``.
+    """
+
+    position: tuple
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+def back_project(camera: CeilingCamera, depth: Array, valid: Array, row=0, col=0) -> Array:
+    r"""World-frame points of depth pixels, :math:`X = c + z\,((j + 1/2 - c_x)/f_x,\
+    -(i + 1/2 - c_y)/f_y, -1)`: the third coordinate is the height above the floor.
+
+    Args:
+      camera: `CeilingCamera`; depth: [h, w] depths along the optical axis; valid: [h, w].
+      row, col: pixel offset of the block in the full image (0 for a full image).
+
+    Returns:
+      [h * w, 3] points; invalid pixels give the camera centre (mask them).
+
+    Example:
+      >>> pts = back_project(CeilingCamera((0, 0, 3), 70, 70, 40, 30), depth, depth > 0)
+    """
+    h, w = depth.shape
+    dtype = depth.dtype
+    j = jnp.arange(w, dtype=dtype) + 0.5 + jnp.asarray(col, dtype)
+    i = jnp.arange(h, dtype=dtype) + 0.5 + jnp.asarray(row, dtype)
+    jj, ii = jnp.meshgrid(j, i)
+    z = jnp.where(valid, depth, 0.0)
+    c = jnp.asarray(camera.position, dtype)
+    pts = jnp.stack([c[0] + z * (jj - camera.cx) / camera.fx,
+                     c[1] - z * (ii - camera.cy) / camera.fy,
+                     c[2] - z], -1)
+    return pts.reshape(-1, 3)
+
+
+def ceiling_cloud(camera: CeilingCamera, depth: Array, valid: Array, max_points: int,
+                  floor_threshold=0.06) -> tuple[Array, Array]:
+    """The tracker's measurement from one depth image: back-projected (`back_project`), the
+    floor removed (heights above ``floor_threshold``), and the ``max_points`` highest points
+    kept (a humanoid's head and shoulders are its highest points), highest first.
+
+    Args:
+      camera: `CeilingCamera`; depth: [H, W] metres (non-finite or <= 0: no return);
+      valid: [H, W] bools; max_points: capacity P (static).
+
+    Returns:
+      ``(points [P, 3], mask [P])``.
+
+    Example:
+      >>> pts, mask = ceiling_cloud(camera, depth, depth > 0, 96)
+    """
+    _checks.check_shape("depth", depth, (None, None), "[H, W] depth image")
+    _checks.check_shape("valid", valid, _checks.shape_of(depth), "one flag per pixel")
+    if int(max_points) < 1:
+        raise ValueError(f"max_points must be >= 1; got {max_points}")
+    depth = jnp.asarray(depth)
+    valid = jnp.asarray(valid) & jnp.isfinite(depth) & (depth > 0)
+    pts = back_project(camera, jnp.where(valid, depth, 0.0), valid)
+    mask = valid.reshape(-1) & (pts[:, 2] > floor_threshold)
+    P = min(int(max_points), mask.shape[0])
+    _, idx = jax.lax.top_k(jnp.where(mask, pts[:, 2], -jnp.inf), P)
+    return pts[idx], mask[idx]
 
 
 # ---------------------------------------------------------------------------------------------

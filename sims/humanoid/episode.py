@@ -108,6 +108,12 @@ class EpisodeConfig:
       smooth: `humanoid.SmoothConfig` for the differentiable variant (sigmoid-edged count,
         differentiable resampling, smooth stop gate) for gradient tuning; None: the seed's.
       dtype: float dtype of the simulation.
+      record: also return what a recording of the camera holds, per frame (for writing a
+        depth bag: `sims.humanoid.recording`): ``window_points`` [T, K*K, 3] (every pixel of
+        the rendered window back-projected, noisy; invalid pixels at the camera centre),
+        ``window_row`` / ``window_col`` [T] (its top-left pixel), ``tracker_keys`` [T, 2]
+        (the key the tracker drew with), ``tracker_init_key`` (the one it started with) and
+        ``turn_rate`` [T] (its control input).
     """
 
     scene: scene_mod.Scene
@@ -122,6 +128,7 @@ class EpisodeConfig:
     sway_frames: int | None = None
     smooth: humanoid.SmoothConfig | None = None
     dtype: type = jnp.float32
+    record: bool = False
 
 
 def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
@@ -250,7 +257,9 @@ def make_episode(config: EpisodeConfig):
                                              config.noise, dtype=dtype)
         score = jnp.where(mask, pts[:, 2], -jnp.inf)
         _, idx = jax.lax.top_k(score, n_pts)
-        return truth, humanoid.DepthScan(pts[idx], mask[idx], turn_rate)
+        window = ((pts, *sensor.window_origin(sc.camera, truth[:2], k_win)) if config.record
+                  else ())
+        return truth, humanoid.DepthScan(pts[idx], mask[idx], turn_rate), window
 
     def behave(s: State, est, target, params: EpisodeParams):
         """The reach controller; its stop rule sees the estimate averaged over the last step
@@ -267,14 +276,15 @@ def make_episode(config: EpisodeConfig):
     def frame(s: State, key, target, params: EpisodeParams):
         k_obs, k_trk, k_gait = jax.random.split(key, 3)
         g = world_step(s.gait, s.pending)
-        truth, scan = sense(k_obs, g, s.pending.turn_rate)
+        truth, scan, window = sense(k_obs, g, s.pending.turn_rate)
         tstate, est = tracker.update(k_trk, s.tracker, scan, params.tracker)
+        recorded = (*window, k_trk, scan.turn_rate) if config.record else ()
         cstate, history, cmd, stop = behave(s, est, target, params)
         was_stopped = (s.control.moving < 0.5) if smooth else s.control.stopped
         pending = Pending(cmd.body_velocity, cmd.turn_rate.astype(dtype), stop, k_gait,
                           jnp.asarray(True))
         return State(g, tstate, cstate, history, pending), (truth, est, ~was_stopped,
-                                                            cmd.stopped)
+                                                            cmd.stopped, recorded)
 
     def episode(key, params: EpisodeParams):
         start = jnp.asarray(params.start, dtype)
@@ -286,13 +296,18 @@ def make_episode(config: EpisodeConfig):
                       jnp.broadcast_to(start, (n_avg, 3)),
                       Pending(jnp.zeros(2, dtype), jnp.zeros((), dtype), jnp.asarray(False),
                               k_run, jnp.asarray(False)))
-        state, (truth, est, active, stopped) = jax.lax.scan(
+        state, (truth, est, active, stopped, recorded) = jax.lax.scan(
             lambda s, k: frame(s, k, target, params), state,
             jax.random.split(k_run, config.num_frames))
         # The last command's frame, then let a stopped robot finish its step and settle before
         # the final pose is read.
         final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt), gp)
-        return _metrics(config, n_avg, start, target, truth, est, active, stopped, final)
+        metrics = _metrics(config, n_avg, start, target, truth, est, active, stopped, final)
+        if config.record:
+            metrics.update(zip(("window_points", "window_row", "window_col", "tracker_keys",
+                                "turn_rate"), recorded))
+            metrics["tracker_init_key"] = k_init
+        return metrics
 
     return episode
 

@@ -50,13 +50,14 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxtrack.perception import depth as depth_mod
 from sims.humanoid.scene import Camera, Scene, camera_rays
 
 Array = jax.Array
 
 __all__ = ["DepthNoise", "Window", "ray_distances", "render", "background", "window_size",
-           "render_window", "add_noise", "back_project", "remove_floor", "point_cloud",
-           "robot_point_cloud"]
+           "render_window", "add_noise", "ceiling_camera", "back_project", "window_origin",
+           "remove_floor", "point_cloud", "robot_point_cloud"]
 
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX = 0, 2, 3, 4, 6
 
@@ -187,11 +188,7 @@ def render_window(scene: Scene, xpos: Array, xmat: Array, centre: Array, size: i
     """
     cam = scene.camera
     cpos = np.asarray(cam.position)
-    u = cam.cx + cam.fx * (centre[0] - cpos[0]) / cpos[2]
-    v = cam.cy - cam.fy * (centre[1] - cpos[1]) / cpos[2]
-    col = jnp.clip(jnp.round(u - size / 2.0), 0, cam.width - size).astype(jnp.int32)
-    row = jnp.clip(jnp.round(v - size / 2.0), 0, cam.height - size).astype(jnp.int32)
-    col, row = lax.stop_gradient(col), lax.stop_gradient(row)
+    row, col = window_origin(cam, centre, size)
     dirs, cos = camera_rays(cam, dtype)
     dirs = lax.dynamic_slice(dirs, (row, col, jnp.int32(0)), (size, size, 3))
     cos = lax.dynamic_slice(cos, (row, col), (size, size))
@@ -233,28 +230,27 @@ def add_noise(key: Array, depth: Array, noise: DepthNoise = DepthNoise()) -> tup
     return jnp.where(valid, noisy, 0.0), valid
 
 
+def ceiling_camera(camera: Camera) -> depth_mod.CeilingCamera:
+    """The scene's camera as a `jaxtrack.perception.depth.CeilingCamera` (the replay's)."""
+    return depth_mod.CeilingCamera(tuple(camera.position), camera.fx, camera.fy, camera.cx,
+                                   camera.cy)
+
+
 def back_project(camera: Camera, depth: Array, valid: Array, row=0, col=0) -> Array:
-    r"""World-frame points of depth pixels: :math:`X = c + z\,((j + 1/2 - c_x)/f_x,
-    -(i + 1/2 - c_y)/f_y, -1)`; the third coordinate is then the height above the floor.
+    """`jaxtrack.perception.depth.back_project` with the scene's camera: [h * w, 3] world
+    points (x, y, height) of a depth block at pixel offset (row, col)."""
+    return depth_mod.back_project(ceiling_camera(camera), depth, valid, row, col)
 
-    Args:
-      camera: `Camera`; depth: [h, w] depths; valid: [h, w] bools.
-      row, col: pixel offset of the block (for a `Window`).
 
-    Returns:
-      [h * w, 3] points (x, y, height); invalid pixels give the camera centre (mask them).
-    """
-    h, w = depth.shape
-    dtype = depth.dtype
-    j = jnp.arange(w, dtype=dtype) + 0.5 + jnp.asarray(col, dtype)
-    i = jnp.arange(h, dtype=dtype) + 0.5 + jnp.asarray(row, dtype)
-    jj, ii = jnp.meshgrid(j, i)
-    z = jnp.where(valid, depth, 0.0)
-    c = jnp.asarray(camera.position, dtype)
-    pts = jnp.stack([c[0] + z * (jj - camera.cx) / camera.fx,
-                     c[1] - z * (ii - camera.cy) / camera.fy,
-                     c[2] - z], -1)
-    return pts.reshape(-1, 3)
+def window_origin(camera: Camera, centre, size: int) -> tuple[Array, Array]:
+    """Top-left pixel (row, col) [int32] of the ``size`` window centred on the image of the
+    world point ``centre`` [2] (clipped to the image; no gradient)."""
+    cpos = np.asarray(camera.position)
+    u = camera.cx + camera.fx * (centre[0] - cpos[0]) / cpos[2]
+    v = camera.cy - camera.fy * (centre[1] - cpos[1]) / cpos[2]
+    col = jnp.clip(jnp.round(u - size / 2.0), 0, camera.width - size).astype(jnp.int32)
+    row = jnp.clip(jnp.round(v - size / 2.0), 0, camera.height - size).astype(jnp.int32)
+    return lax.stop_gradient(row), lax.stop_gradient(col)
 
 
 def remove_floor(points: Array, valid: Array, floor_threshold=0.06) -> Array:

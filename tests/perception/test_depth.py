@@ -377,3 +377,21 @@ def test_pca_heading_rejects_bad_arguments():
         depth.pca_heading(pts, mask, np.zeros(2), 0.3, 0.0, 0.3, gain=1.5)
     with pytest.raises(ValueError, match="prev_heading"):
         depth.pca_heading(pts, mask, np.zeros(2), 0.3, np.nan, 0.3)
+
+
+def test_ceiling_cloud_keeps_the_highest_points_above_the_floor():
+    rng = np.random.default_rng(0)
+    cam = depth.CeilingCamera((0.3, -0.2, 2.5), 40.0, 42.0, 16.0, 12.5)
+    img = rng.uniform(2.2, 2.6, (24, 32)).astype(np.float32)
+    valid = rng.uniform(size=img.shape) > 0.1
+    pts, mask = jax.jit(lambda d, m: depth.ceiling_cloud(cam, d, m, 20))(img, valid)
+    # Reference: numpy back-projection of every pixel, floor removed, sorted by height.
+    i, j = np.mgrid[0:24, 0:32]
+    ref = np.stack([0.3 + img * (j + 0.5 - 16.0) / 40.0, -0.2 - img * (i + 0.5 - 12.5) / 42.0,
+                    2.5 - img], -1).reshape(-1, 3)
+    ok = valid.reshape(-1) & (ref[:, 2] > 0.06)
+    best = ref[ok][np.argsort(-ref[ok][:, 2], kind="stable")[:20]]
+    assert bool(np.all(mask))
+    np.testing.assert_allclose(np.asarray(pts), best, atol=1e-5)
+    none, none_mask = depth.ceiling_cloud(cam, img, np.zeros_like(valid), 8)
+    assert none.shape == (8, 3) and not bool(none_mask.any())
