@@ -189,9 +189,10 @@ def multi_target(config: MultiTargetConfig = MultiTargetConfig()) -> Estimator:
     """The multi-target user estimator (module docstring) as an `Estimator`.
 
     ``params(dt=0.1, laser_std=0.1, rgbd_std=0.3, q=1.0, p_detect=0.8, clutter_density=0.02,
-    colour_std=0.05, dtype=float32)``: natural values (noise of the laser people 0.1 m and of
-    the RGB-D people 0.3 m, seed 003; the colour feature's noise per channel 0.05, which the
-    user's colour learnt from many looks makes usable: `reid`).
+    colour_std=0.05, dtype=float32)``: natural values (noise of the laser people 0.1 m, the
+    project's figure for the simulated laser's leg-pair centre (seed 003 gives 0.2 m for
+    its laser); of the RGB-D people 0.3 m, seed 003's; the colour feature's noise per
+    channel 0.05, which the user's colour learnt from many looks makes usable: `reid`).
 
     Example:
       >>> est = multi_target(MultiTargetConfig(appearance=True))
