@@ -75,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
                        help="predict the PCA heading with the commanded turn (pf, ukf)")
     reach.add_argument("--heading-gain", type=float, default=0.5,
                        help="smoothing gain of the PCA heading, in (0, 1]")
+    reach.add_argument("--walkers", type=int, default=0,
+                       help="people pacing near the robot, occluding it from the camera "
+                            "(seed 000 section 5.6)")
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
@@ -320,12 +323,14 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{flag} must be a finite positive number; got {value}")
     if not 0 < args.heading_gain <= 1:
         parser.error(f"--heading-gain must be in (0, 1]; got {args.heading_gain}")
+    if args.walkers < 0:
+        parser.error(f"--walkers must be >= 0; got {args.walkers}")
     _import_mjx_quietly()
     run_humanoid_reach(args.episodes, args.tracker, args.out, args.seed, args.particles,
                        args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
                        temperature=args.temperature, turn_prediction=args.turn_prediction,
-                       heading_gain=args.heading_gain)
+                       heading_gain=args.heading_gain, walkers=args.walkers)
     return 0
 
 
@@ -485,14 +490,15 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        resolution=(80, 60), stream=sys.stdout, lambda_x: float = 0.1,
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
                        temperature: float | None = None, turn_prediction: bool = False,
-                       heading_gain: float = 0.5, progress: bool = True) -> dict:
+                       heading_gain: float = 0.5, progress: bool = True,
+                       walkers: int = 0) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
     values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
     ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
-    the PCA heading (`sims.humanoid.episode.EpisodeConfig`). ``progress`` shows a progress bar
-    on stderr.
+    the PCA heading (`sims.humanoid.episode.EpisodeConfig`); ``walkers`` people pace near the
+    robot (`EpisodeConfig.walkers`). ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.
@@ -503,7 +509,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     from sims.humanoid import episode
 
     episode_fn = _humanoid_episode(tracker, particles, frames, tuple(resolution), heading_gain,
-                                   turn_prediction)
+                                   turn_prediction, int(walkers))
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
@@ -522,7 +528,9 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     run_s = time.perf_counter() - t1
     table = task_table(results, frames)
     print(table, file=stream)
-    print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}) "
+    people = f", {walkers} walkers" if walkers else ""
+    print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}"
+          f"{people}) "
           f"in {run_s:.1f} s after {compile_s:.1f} s of compilation "
           f"({total / run_s:.1f} episodes/s)", file=stream)
     if out is not None:
@@ -532,7 +540,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
 
 
 @functools.lru_cache(maxsize=8)
-def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction):
+def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction,
+                      walkers=0):
     """The episode function of a humanoid-reach run. Cached: runs with the same settings in a
     process share it, and so the batches `jaxtrack.montecarlo` compiled for it (it caches them
     by function)."""
@@ -544,7 +553,7 @@ def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn
                 "pf3": humanoid.DepthPF3Config(num_particles=particles),
                 "ukf": humanoid.CentroidUKFConfig(heading=heading)}
     cfg = episode.EpisodeConfig(scene.build(*resolution), tracker=trackers[tracker],
-                                num_frames=frames)
+                                num_frames=frames, walkers=walkers)
     return episode.make_episode(cfg)
 
 

@@ -57,7 +57,7 @@ from sims.humanoid import gait, scene as scene_mod, sensor
 Array = jax.Array
 
 __all__ = ["TRACKERS", "EpisodeConfig", "EpisodeParams", "State", "make_params", "make_episode",
-           "seed_task_params"]
+           "walker_positions", "seed_task_params"]
 
 TRACKERS = humanoid.TRACKERS
 
@@ -108,6 +108,14 @@ class EpisodeConfig:
       smooth: `humanoid.SmoothConfig` for the differentiable variant (sigmoid-edged count,
         differentiable resampling, smooth stop gate) for gradient tuning; None: the seed's.
       dtype: float dtype of the simulation.
+      walkers: people walking near the robot (seed 000 section 5.6: occlusion from the
+        camera), each pacing back and forth at ``walker_speed`` (m/s) along a straight line
+        1.5 m either side of a point 0.25-0.8 m beside the route, in a random direction
+        (`walker_positions`); each is a 1.7 m tall capsule of radius 0.2 m in the depth image.
+        0: none (the episode's random draws are then those of a scene without people).
+      max_point_height: points higher than this (m) are not the robot's (a NAO is 0.57 m
+        tall): dropped before the ``max_points`` highest are kept, so that a person's head
+        and shoulders never fill the cloud.
       record: also return what a recording of the camera holds, per frame (for writing a
         depth bag: `sims.humanoid.recording`): ``window_points`` [T, K*K, 3] (every pixel of
         the rendered window back-projected, noisy; invalid pixels at the camera centre),
@@ -128,6 +136,9 @@ class EpisodeConfig:
     sway_frames: int | None = None
     smooth: humanoid.SmoothConfig | None = None
     dtype: type = jnp.float32
+    walkers: int = 0
+    walker_speed: float = 0.8
+    max_point_height: float = 1.0
     record: bool = False
 
 
@@ -248,13 +259,15 @@ def make_episode(config: EpisodeConfig):
         stepped, _ = jax.lax.scan(sub, g, jax.random.split(p.key, config.substeps))
         return jax.tree_util.tree_map(lambda a, b: jnp.where(p.started, a, b), stepped, g)
 
-    def sense(key, g, turn_rate):
+    def sense(key, g, turn_rate, walkers):
         """The true torso pose, and the camera's points of the robot (world frame)."""
         truth = gait.torso_pose(g, gp)
         q = gait.qpos(sc, g, gp)
         xpos, xmat = scene_mod.pose_geoms(sc, q)
+        occ = None if walkers is None else _walker_geoms(walkers, dtype)
         pts, mask = sensor.robot_point_cloud(key, sc, xpos, xmat, truth, k_win, bg,
-                                             config.noise, dtype=dtype)
+                                             config.noise, dtype=dtype, occluders=occ)
+        mask = mask & (pts[:, 2] <= config.max_point_height)
         score = jnp.where(mask, pts[:, 2], -jnp.inf)
         _, idx = jax.lax.top_k(score, n_pts)
         window = ((pts, *sensor.window_origin(sc.camera, truth[:2], k_win)) if config.record
@@ -273,10 +286,10 @@ def make_episode(config: EpisodeConfig):
                                    stop_pose=_pose_mean(history))
         return cstate, history, cmd, cmd.stopped
 
-    def frame(s: State, key, target, params: EpisodeParams):
+    def frame(s: State, key, target, params: EpisodeParams, walkers=None):
         k_obs, k_trk, k_gait = jax.random.split(key, 3)
         g = world_step(s.gait, s.pending)
-        truth, scan, window = sense(k_obs, g, s.pending.turn_rate)
+        truth, scan, window = sense(k_obs, g, s.pending.turn_rate, walkers)
         tstate, est = tracker.update(k_trk, s.tracker, scan, params.tracker)
         recorded = (*window, k_trk, scan.turn_rate) if config.record else ()
         cstate, history, cmd, stop = behave(s, est, target, params)
@@ -296,9 +309,15 @@ def make_episode(config: EpisodeConfig):
                       jnp.broadcast_to(start, (n_avg, 3)),
                       Pending(jnp.zeros(2, dtype), jnp.zeros((), dtype), jnp.asarray(False),
                               k_run, jnp.asarray(False)))
-        state, (truth, est, active, stopped, recorded) = jax.lax.scan(
-            lambda s, k: frame(s, k, target, params), state,
-            jax.random.split(k_run, config.num_frames))
+        keys = jax.random.split(k_run, config.num_frames)
+        if config.walkers:
+            paths = walker_positions(jax.random.fold_in(key, 1), start, target, config.walkers,
+                                     config.num_frames, config.frame_dt, config.walker_speed)
+            state, (truth, est, active, stopped, recorded) = jax.lax.scan(
+                lambda s, x: frame(s, x[0], target, params, x[1]), state, (keys, paths))
+        else:
+            state, (truth, est, active, stopped, recorded) = jax.lax.scan(
+                lambda s, k: frame(s, k, target, params), state, keys)
         # The last command's frame, then let a stopped robot finish its step and settle before
         # the final pose is read.
         final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt), gp)
@@ -310,6 +329,40 @@ def make_episode(config: EpisodeConfig):
         return metrics
 
     return episode
+
+
+def walker_positions(key, start, target, num: int, num_frames: int, frame_dt: float,
+                     speed: float = 0.8) -> Array:
+    """[T, num, 2] positions of people pacing near the route from ``start`` to ``target``
+    (`EpisodeConfig.walkers`): walker i walks back and forth (a triangle wave, 1.5 m either
+    side) along a line in a uniform random direction through a point beside the route (a
+    uniform fraction 0.2-0.8 of the way, 0.25-0.8 m to a random side), at a random phase."""
+    k = jax.random.split(key, 5)
+    dtype = start.dtype
+    route = target[:2] - start[:2]
+    length = jnp.maximum(jnp.linalg.norm(route), 1e-3)
+    normal = jnp.stack([-route[1], route[0]]) / length
+    u = jax.random.uniform(k[0], (num,), dtype, 0.2, 0.8)
+    side = jnp.where(jax.random.bernoulli(k[1], 0.5, (num,)), 1.0, -1.0).astype(dtype)
+    off = jax.random.uniform(k[2], (num,), dtype, 0.25, 0.8)
+    centre = start[:2] + u[:, None] * route + (side * off)[:, None] * normal
+    angle = jax.random.uniform(k[3], (num,), dtype, 0.0, 2 * math.pi)
+    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)
+    phase = jax.random.uniform(k[4], (num,), dtype)
+    amplitude = 1.5
+    t = (jnp.arange(1, num_frames + 1, dtype=dtype) * frame_dt)[:, None]
+    cycle = (t * speed / (4 * amplitude) + phase) % 1.0            # [T, num]
+    s = amplitude * (1.0 - 4.0 * jnp.abs(cycle - 0.5))             # -A .. A .. -A
+    return centre + s[..., None] * direction
+
+
+def _walker_geoms(xy, dtype) -> sensor.Occluders:
+    """Walkers [W, 2] as standing capsules 1.7 m tall, radius 0.2 m."""
+    W = xy.shape[0]
+    xpos = jnp.concatenate([xy, jnp.full((W, 1), 0.85, dtype)], -1)
+    sizes = jnp.broadcast_to(jnp.asarray([0.2, 0.65, 0.0], dtype), (W, 3))
+    return sensor.Occluders(np.full(W, 3), sizes, xpos.astype(dtype),
+                            jnp.broadcast_to(jnp.eye(3, dtype=dtype), (W, 3, 3)))
 
 
 def _metrics(config, n_avg, start, target, truth, est, active, stopped, final):

@@ -55,7 +55,7 @@ from sims.humanoid.scene import Camera, Scene, camera_rays
 
 Array = jax.Array
 
-__all__ = ["DepthNoise", "Window", "ray_distances", "render", "background", "window_size",
+__all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "render", "background", "window_size",
            "render_window", "add_noise", "ceiling_camera", "back_project", "window_origin",
            "remove_floor", "point_cloud", "robot_point_cloud"]
 
@@ -93,6 +93,31 @@ class Window(NamedTuple):
 
 # ---------------------------------------------------------------------------------------------
 # Ray casting
+
+
+class Occluders(NamedTuple):
+    """Other bodies in the camera's view (people walking by), as primitives.
+
+    Attributes:
+      types: [G] static ``mjtGeom`` codes (`ray_distances`'); sizes: [G, 3];
+      xpos: [G, 3] world centres; xmat: [G, 3, 3] orientations.
+    """
+
+    types: np.ndarray
+    sizes: Array
+    xpos: Array
+    xmat: Array
+
+
+def _render_occluders(scene: Scene, occ: Occluders, row, col, size, dtype):
+    """[size, size] depth of the occluders alone in the window at (row, col)."""
+    dirs, cos = camera_rays(scene.camera, dtype)
+    dirs = lax.dynamic_slice(dirs, (row, col, jnp.int32(0)), (size, size, 3))
+    cos = lax.dynamic_slice(cos, (row, col), (size, size))
+    dist = ray_distances(jnp.asarray(scene.camera.position, dtype), dirs.reshape(-1, 3),
+                         occ.types, jnp.asarray(occ.sizes, dtype), jnp.asarray(occ.xpos, dtype),
+                         jnp.asarray(occ.xmat, dtype))
+    return dist.reshape(size, size) * cos
 
 
 def ray_distances(origin: Array, dirs: Array, geom_types: np.ndarray, sizes: Array,
@@ -269,7 +294,8 @@ def point_cloud(key: Array, scene: Scene, window: Window, noise: DepthNoise = De
 
 def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: Array,
                       size: int, background_depth: Array, noise: DepthNoise = DepthNoise(),
-                      floor_threshold=0.06, dtype=jnp.float32) -> tuple[Array, Array]:
+                      floor_threshold=0.06, dtype=jnp.float32,
+                      occluders: Occluders | None = None) -> tuple[Array, Array]:
     r"""Noisy, floor-removed point cloud of the robot's window, differentiable in its pose.
 
     The values are those of `render_window` (centred on ``pose[:2]``) followed by
@@ -286,6 +312,8 @@ def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: 
       pose: [3] torso pose (x, y, yaw) the geoms were posed from.
       size: window side K (static, `window_size`); background_depth: [H, W] (`background`).
       noise: `DepthNoise`; floor_threshold: floor-removal height (m).
+      occluders: `Occluders` (people walking by) rendered in the window too, in front of the
+        robot where nearer the camera; None: none.
 
     Returns:
       ``(points [K*K, 3], mask [K*K])``.
@@ -308,10 +336,15 @@ def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: 
     xmat_rel = jnp.einsum("ji,gjk->gik", rot, xmat)
     win = render_window(scene, xpos_rel, xmat_rel, lax.stop_gradient(pose[:2]), size,
                         background_depth, dtype)
-    pts, mask = point_cloud(key, scene, win, noise, floor_threshold)
     bg = lax.dynamic_slice(jnp.asarray(background_depth, dtype), (win.row, win.col),
                            (size, size))
-    on_robot = (win.depth < bg).reshape(-1)
+    if occluders is not None:
+        other = _render_occluders(scene, occluders, win.row, win.col, size, dtype)
+        on_robot = (win.depth < jnp.minimum(bg, other)).reshape(-1)
+        win = win._replace(depth=jnp.minimum(win.depth, other))
+    else:
+        on_robot = (win.depth < bg).reshape(-1)
+    pts, mask = point_cloud(key, scene, win, noise, floor_threshold)
     moved = (pts - centre) @ rot.T + centre + shift
     return jnp.where(on_robot[:, None], moved, pts), mask
 
