@@ -167,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="with --depth-topic: the humanoid tracker")
     trk.add_argument("--max-points", type=int, default=96,
                      help="with --depth-topic: the highest points the tracker is given")
+    trk.add_argument("--max-height", type=float, default=None,
+                     help="with --depth-topic: points higher than this (m) are not the "
+                          "robot's (people walking by); default no limit")
     trk.add_argument("--out", type=Path, required=True, help="output directory")
     tl = sub.add_parser("train-legs", help="train the learned leg detector (a random forest "
                                            "over scan-segment features) on recorded bags; "
@@ -429,9 +432,11 @@ def _track_depth(parser, args) -> int:
         parser.error("give --laser-topic or --depth-topic, not both")
     if args.camera_position is None or args.focal is None:
         parser.error("--depth-topic needs --camera-position X Y Z and --focal FX FY")
-    values = [*args.camera_position, *args.focal, *(args.principal or ()), *(args.start or ())]
+    values = [*args.camera_position, *args.focal, *(args.principal or ()), *(args.start or ()),
+              *(() if args.max_height is None else (args.max_height,))]
     if not all(math.isfinite(v) for v in values):
-        parser.error("--camera-position, --focal, --principal and --start must be finite")
+        parser.error("--camera-position, --focal, --principal, --start and --max-height must "
+                     "be finite")
     if not (args.camera_position[2] > 0 and min(args.focal) > 0):
         parser.error("the camera must be above the floor (Z > 0) with positive focal lengths")
     if args.chunk < 1 or args.max_points < 1:
@@ -447,7 +452,8 @@ def _track_depth(parser, args) -> int:
                         camera_position=tuple(args.camera_position), focal=tuple(args.focal),
                         principal=tuple(args.principal) if args.principal else None,
                         start=tuple(args.start) if args.start else None, tracker=args.tracker,
-                        max_points=args.max_points, seed=args.seed, chunk=args.chunk,
+                        max_points=args.max_points, max_height=args.max_height,
+                        seed=args.seed, chunk=args.chunk,
                         time_source=args.time_source)
     except bags.BagError as err:
         parser.exit(2, f"jaxtrack track: {err}\n")

@@ -54,8 +54,9 @@ def track_depth(images: bags.DepthImages, camera: depth.CeilingCamera, start=Non
                 tracker="pf", *, params: humanoid.DepthTrackerParams | None = None,
                 key: Array | None = None, keys: Array | None = None,
                 init_key: Array | None = None, turn_rate=None, max_points: int = 96,
-                floor_threshold: float = 0.06, chunk: int = 64, dtype=jnp.float32,
-                progress: bool = True, stream=None) -> DepthTrack:
+                floor_threshold: float = 0.06, max_height: float | None = None,
+                chunk: int = 64, dtype=jnp.float32, progress: bool = True,
+                stream=None) -> DepthTrack:
     """Track a humanoid through recorded ceiling depth images.
 
     Args:
@@ -70,7 +71,8 @@ def track_depth(images: bags.DepthImages, camera: depth.CeilingCamera, start=Non
         (to replay a simulated episode with its own keys).
       turn_rate: [T] the commanded turn rate over the frame before each image (rad/s), the
         trackers' control input; default 0.
-      max_points, floor_threshold: `depth.ceiling_cloud`'s.
+      max_points, floor_threshold, max_height: `depth.ceiling_cloud`'s (the simulated scene
+        drops points above 1 m: `sims.humanoid.episode.EpisodeConfig.max_point_height`).
       chunk: frames per compiled ``lax.scan``.
 
     Returns:
@@ -107,7 +109,10 @@ def track_depth(images: bags.DepthImages, camera: depth.CeilingCamera, start=Non
     if turn.shape != (T,) or not np.all(np.isfinite(turn)):
         raise ValueError(f"turn_rate must be [{T}] finite values")
     params = est.params(dtype=dtype) if params is None else params
-    cloud = _cloud_fn(camera, int(max_points), float(floor_threshold))
+    if max_height is not None and not math.isfinite(float(max_height)):
+        raise ValueError(f"max_height must be finite or None; got {max_height}")
+    limit = None if max_height is None else float(max_height)
+    cloud = _cloud_fn(camera, int(max_points), float(floor_threshold), limit)
     if start is None:
         pts, mask = cloud(jnp.asarray(images_d[0]), jnp.asarray(masks[0]))
         if not bool(mask.any()):
@@ -118,7 +123,7 @@ def track_depth(images: bags.DepthImages, camera: depth.CeilingCamera, start=Non
     if start.shape != (3,) or not np.all(np.isfinite(start)):
         raise ValueError(f"start must be a finite (x, y, heading); got {start}")
     state = est.init(init_key, params, jnp.asarray(start, dtype))
-    run = _chunk_runner(config, dt, camera, int(max_points), float(floor_threshold))
+    run = _chunk_runner(config, dt, camera, int(max_points), float(floor_threshold), limit)
     C = int(chunk)
     poses, counts = [], []
     bar = montecarlo.progress_bar(T, unit="frames", file=stream, disable=not progress)
@@ -158,18 +163,20 @@ def _check_camera(camera) -> depth.CeilingCamera:
 
 
 @functools.lru_cache(maxsize=8)
-def _cloud_fn(camera, max_points, floor_threshold):
-    return jax.jit(lambda d, m: depth.ceiling_cloud(camera, d, m, max_points, floor_threshold))
+def _cloud_fn(camera, max_points, floor_threshold, max_height):
+    return jax.jit(lambda d, m: depth.ceiling_cloud(camera, d, m, max_points, floor_threshold,
+                                                    max_height))
 
 
 @functools.lru_cache(maxsize=8)
-def _chunk_runner(config, dt, camera, max_points, floor_threshold):
+def _chunk_runner(config, dt, camera, max_points, floor_threshold, max_height):
     est = humanoid.build(config, dt)
 
     def run(state, xs, params):
         def frame(s, x):
             image, mask, k, turn, valid = x
-            pts, pmask = depth.ceiling_cloud(camera, image, mask, max_points, floor_threshold)
+            pts, pmask = depth.ceiling_cloud(camera, image, mask, max_points, floor_threshold,
+                                             max_height)
             new, pose = est.update(k, s, humanoid.DepthScan(pts, pmask, turn), params)
             new = jax.tree_util.tree_map(lambda a, b: jnp.where(valid, a, b), new, s)
             return new, (pose, jnp.sum(pmask))
@@ -189,7 +196,8 @@ def write_trajectory(path, track: DepthTrack) -> int:
 
 def track_depth_bag(bag, topic: str, out, *, camera_position, focal, principal=None, start=None,
                     tracker: str = "pf", max_points: int = 96, floor_threshold: float = 0.06,
-                    seed: int = 0, chunk: int = 64, time_source: str = "header",
+                    max_height: float | None = None, seed: int = 0, chunk: int = 64,
+                    time_source: str = "header",
                     stream=None) -> dict:
     """``jaxtrack track --depth-topic``: read the depth images (``sensor_msgs/Image`` 16UC1 or
     32FC1), replay `track_depth`, write ``trajectory.csv`` (`write_trajectory`) and
@@ -211,7 +219,8 @@ def track_depth_bag(bag, topic: str, out, *, camera_position, focal, principal=N
     cx, cy = (W / 2.0, H / 2.0) if principal is None else principal
     camera = depth.CeilingCamera(tuple(camera_position), *focal, cx, cy)
     result = track_depth(images, camera, start, tracker, key=jax.random.PRNGKey(seed),
-                         max_points=max_points, floor_threshold=floor_threshold, chunk=chunk,
+                         max_points=max_points, floor_threshold=floor_threshold,
+                         max_height=max_height, chunk=chunk,
                          stream=stream)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

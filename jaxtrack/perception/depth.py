@@ -151,7 +151,7 @@ def back_project(camera: CeilingCamera, depth: Array, valid: Array, row=0, col=0
 
 
 def ceiling_cloud(camera: CeilingCamera, depth: Array, valid: Array, max_points: int,
-                  floor_threshold=0.06) -> tuple[Array, Array]:
+                  floor_threshold=0.06, max_height=None) -> tuple[Array, Array]:
     """The tracker's measurement from one depth image: back-projected (`back_project`), the
     floor removed (heights above ``floor_threshold``), and the ``max_points`` highest points
     kept (a humanoid's head and shoulders are its highest points), highest first.
@@ -159,6 +159,8 @@ def ceiling_cloud(camera: CeilingCamera, depth: Array, valid: Array, max_points:
     Args:
       camera: `CeilingCamera`; depth: [H, W] metres (non-finite or <= 0: no return);
       valid: [H, W] bools; max_points: capacity P (static).
+      max_height: points higher than this (m) are dropped first (people walking by, whose
+        heads and shoulders would otherwise be the highest points); None: no limit.
 
     Returns:
       ``(points [P, 3], mask [P])``.
@@ -174,6 +176,8 @@ def ceiling_cloud(camera: CeilingCamera, depth: Array, valid: Array, max_points:
     valid = jnp.asarray(valid) & jnp.isfinite(depth) & (depth > 0)
     pts = back_project(camera, jnp.where(valid, depth, 0.0), valid)
     mask = valid.reshape(-1) & (pts[:, 2] > floor_threshold)
+    if max_height is not None:
+        mask = mask & (pts[:, 2] <= max_height)
     P = min(int(max_points), mask.shape[0])
     _, idx = jax.lax.top_k(jnp.where(mask, pts[:, 2], -jnp.inf), P)
     return pts[idx], mask[idx]

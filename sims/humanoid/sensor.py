@@ -55,9 +55,9 @@ from sims.humanoid.scene import Camera, Scene, camera_rays
 
 Array = jax.Array
 
-__all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "render", "background", "window_size",
-           "render_window", "add_noise", "ceiling_camera", "back_project", "window_origin",
-           "remove_floor", "point_cloud", "robot_point_cloud"]
+__all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "render", "background",
+           "window_size", "render_window", "add_noise", "ceiling_camera", "back_project",
+           "window_origin", "remove_floor", "point_cloud", "robot_point_cloud"]
 
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX = 0, 2, 3, 4, 6
 

@@ -395,3 +395,15 @@ def test_ceiling_cloud_keeps_the_highest_points_above_the_floor():
     np.testing.assert_allclose(np.asarray(pts), best, atol=1e-5)
     none, none_mask = depth.ceiling_cloud(cam, img, np.zeros_like(valid), 8)
     assert none.shape == (8, 3) and not bool(none_mask.any())
+
+
+def test_ceiling_cloud_drops_points_above_max_height():
+    cam = depth.CeilingCamera((0.0, 0.0, 3.0), 30.0, 30.0, 8.0, 6.0)
+    img = np.full((12, 16), 3.0, np.float32)        # the floor
+    img[2:4, 2:4] = 1.3                              # a person's shoulders (1.7 m)
+    img[8:10, 10:12] = 2.5                           # a robot's head (0.5 m)
+    pts, mask = depth.ceiling_cloud(cam, img, np.ones_like(img, bool), 6, max_height=1.0)
+    kept = np.asarray(pts)[np.asarray(mask)]
+    assert len(kept) == 4 and np.allclose(kept[:, 2], 0.5, atol=1e-6)
+    pts, mask = depth.ceiling_cloud(cam, img, np.ones_like(img, bool), 6)
+    assert np.allclose(np.asarray(pts)[:4, 2], 1.7, atol=1e-6) and int(mask.sum()) == 6
