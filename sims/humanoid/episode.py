@@ -138,7 +138,7 @@ class EpisodeConfig:
     dtype: type = jnp.float32
     walkers: int = 0
     walker_speed: float = 0.8
-    max_point_height: float = 1.0
+    max_point_height: float = 0.7
     record: bool = False
 
 
