@@ -72,7 +72,7 @@ def track_depth(images: bags.DepthImages, camera: depth.CeilingCamera, start=Non
       turn_rate: [T] the commanded turn rate over the frame before each image (rad/s), the
         trackers' control input; default 0.
       max_points, floor_threshold, max_height: `depth.ceiling_cloud`'s (the simulated scene
-        drops points above 1 m: `sims.humanoid.episode.EpisodeConfig.max_point_height`).
+        drops points above 0.7 m: `sims.humanoid.episode.EpisodeConfig.max_point_height`).
       chunk: frames per compiled ``lax.scan``.
 
     Returns:

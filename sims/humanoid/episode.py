@@ -113,9 +113,10 @@ class EpisodeConfig:
         1.5 m either side of a point 0.25-0.8 m beside the route, in a random direction
         (`walker_positions`); each is a 1.7 m tall capsule of radius 0.2 m in the depth image.
         0: none (the episode's random draws are then those of a scene without people).
-      max_point_height: points higher than this (m) are not the robot's (a NAO is 0.57 m
-        tall): dropped before the ``max_points`` highest are kept, so that a person's head
-        and shoulders never fill the cloud.
+      max_point_height: points higher than this (0.7 m) are not the robot's (a NAO is 0.57 m
+        tall; the camera's noise at that range is about 1 cm): dropped before the
+        ``max_points`` highest are kept, so that a person's head, shoulders and the side of
+        their body facing the camera never enter the cloud.
       record: also return what a recording of the camera holds, per frame (for writing a
         depth bag: `sims.humanoid.recording`): ``window_points`` [T, K*K, 3] (every pixel of
         the rendered window back-projected, noisy; invalid pixels at the camera centre),
