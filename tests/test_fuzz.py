@@ -197,6 +197,21 @@ def sensing_config(leg_threshold=0.05):
                                              leg_threshold=leg_threshold).leg_threshold),)
 
 
+def sensing_mounts(laser_mount=((0.2, 0.0, 0.0), (-0.2, 0.0, 3.14)), merge_radius=0.2):
+    from jaxtrack.perception import sensing
+
+    cfg = sensing.SensingConfig(laser_mount=laser_mount, merge_radius=merge_radius)
+    return (np.asarray(cfg.mounts), np.asarray(cfg.merge_radius))
+
+
+def cloud(depth=np.full((6, 8), 2.0), max_points=5):
+    from jaxtrack.perception import depth as depth_mod
+
+    cam = depth_mod.CeilingCamera((0.0, 0.0, 2.5), 10.0, 10.0, 4.0, 3.0)
+    pts, mask = depth_mod.ceiling_cloud(cam, depth, np.ones(np.shape(depth), bool), max_points)
+    return (np.asarray(pts)[np.asarray(mask)],)
+
+
 def _nan(a):
     a = np.array(a, dtype=np.float64)
     a.flat[0] = np.nan
@@ -234,6 +249,7 @@ CASES = [
     ("empty", leg_match, {"det_xy": np.zeros((0, 3, 2)), "labels": np.zeros((0, 2, 2))},
      "det_xy", "ok"),
     ("empty", leg_threshold, {"scores": np.zeros(0), "y": np.zeros(0)}, "scores", "ok"),
+    ("empty", cloud, {"depth": np.zeros((0, 8))}, "depth", "ok"),
     # nan
     ("nan", kf, {"F": _nan(F)}, "F", "error"),
     ("nan", kf, {"H": _nan(H)}, "H", "error"),
@@ -264,6 +280,9 @@ CASES = [
     ("nan", leg_proba, {"X": _nan(np.ones((5, 14)))}, "X", "either"),
     ("nan", leg_match, {"radius": np.nan}, "radius", "error"),
     ("nan", sensing_config, {"leg_threshold": np.nan}, "leg_threshold", "error"),
+    ("nan", sensing_mounts, {"laser_mount": ((0.0, np.nan, 0.0),)}, "laser_mount", "error"),
+    ("nan", sensing_mounts, {"merge_radius": np.nan}, "merge_radius", "error"),
+    ("nan", cloud, {"depth": _nan(np.full((6, 8), 2.0))}, "depth", "ok"),  # no return
     # covariance
     ("covariance", kf, {"Q": -Q}, "Q", "error"),
     ("covariance", kf, {"R": np.array([[0.1, 0.05], [0.0, 0.1]])}, "R", "error"),
@@ -289,6 +308,10 @@ CASES = [
     ("scale", leg_match, {"radius": -0.15}, "radius", "error"),
     ("scale", sensing_config, {"leg_threshold": 1.5}, "leg_threshold", "error"),
     ("scale", leg_proba, {"X": np.ones((5, 3))}, "X", "error"),
+    ("scale", sensing_mounts, {"merge_radius": -0.1}, "merge_radius", "error"),
+    ("scale", sensing_mounts, {"laser_mount": ((0.0,),)}, "laser_mount", "error"),
+    ("scale", cloud, {"max_points": 0}, "max_points", "error"),
+    ("scale", cloud, {"depth": np.full((6, 8), -2.0)}, "depth", "ok"),  # no return
     # dtype
     ("dtype", kf, {"init": Gaussian(np.zeros(4, int), np.eye(4, dtype=int))}, "init", "ok"),
     ("dtype", kf, {"init": Gaussian(np.zeros(4, np.float32), np.eye(4, dtype=np.float32))},
@@ -310,6 +333,8 @@ CASES = [
     ("dtype", leg_proba, {"X": np.ones((5, 14), int)}, "X", "ok"),
     ("dtype", leg_proba, {"X": np.ones((5, 14), np.float16)}, "X", "either"),
     ("dtype", leg_feats, {"ranges": np.full(90, 3.0, np.float32)}, "ranges", "ok"),
+    ("dtype", cloud, {"depth": np.full((6, 8), 2, int)}, "depth", "either"),
+    ("dtype", cloud, {"depth": np.full((6, 8), 2.0, np.float32)}, "depth", "ok"),
 ]
 
 

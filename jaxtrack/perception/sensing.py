@@ -115,7 +115,7 @@ class SensingConfig:
         """The mounts as ``((x, y, yaw), ...)``, one per laser."""
         given = self.laser_mount if self.multi else (self.laser_mount,)
         if not given:
-            raise ValueError("laser_mount holds no laser")
+            raise ValueError("laser_mount holds no laser mount")
         out = []
         for m in given:
             try:
@@ -123,8 +123,8 @@ class SensingConfig:
             except (TypeError, ValueError):
                 m = ()
             if len(m) not in (2, 3) or not all(map(math.isfinite, m)):
-                raise ValueError(f"a laser mount is (x, y) or (x, y, yaw), finite; got "
-                                 f"{self.laser_mount!r}")
+                raise ValueError(f"laser_mount: a laser mount is (x, y) or (x, y, yaw), "
+                                 f"finite; got {self.laser_mount!r}")
             out.append(m + (0.0,) * (3 - len(m)))
         return tuple(out)
 
