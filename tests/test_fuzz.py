@@ -17,7 +17,7 @@ Outcomes: ``clear`` (ValueError / TypeError whose message names the argument), `
 (any other exception, or an error not naming the argument). The property is that garbage and
 obscure never happen. Every case runs in CI, one test each; ``python -m tests.test_fuzz`` runs
 them all and prints the table per class. A hypothesis test draws further mutations of one
-filter's measurements; ``JAXTRACK_FUZZ_EXAMPLES`` raises its number of examples (default 60).
+filter's measurements; ``JAXTRACK_FUZZ_EXAMPLES`` raises its number of examples (default 25).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from jaxtrack.filters import kalman, particle, ukf
 from jaxtrack.filters.kalman import Gaussian
 from jaxtrack.models import motion
 
-EXAMPLES = int(os.environ.get("JAXTRACK_FUZZ_EXAMPLES", "60"))
+EXAMPLES = int(os.environ.get("JAXTRACK_FUZZ_EXAMPLES", "25"))
 RNG = np.random.default_rng(0)
 
 
