@@ -1,0 +1,139 @@
+r"""Euclidean clustering at fixed capacity: connected components of the neighbour graph.
+
+Seed 001 (section III-B) clusters the non-ground points "by labeling neighboring 3D points on
+the basis of their Euclidean distances": two points belong to one cluster when a chain of
+points, each within the cluster tolerance of the next, joins them. That is the connected
+components of the graph whose edges join points closer than the tolerance (DBSCAN with one
+point per core; PCL's ``EuclideanClusterExtraction``).
+
+The components are found by min-label propagation with pointer jumping, which needs only
+gathers and so runs batched under `vmap` on any device: every point starts with its own index
+as label; each round it takes the smallest label among itself and its neighbours,
+:math:`\ell_i \leftarrow \min(\ell_i, \min_{j \in N(i)} \ell_j)`, then jumps,
+:math:`\ell_i \leftarrow \ell_{\ell_i}`, until no label changes. Every label stays the index of a
+point of the same component, so the fixed point is each component's smallest index. The
+neighbour lists come from `jaxtrack.perception.voxel_grid.grid_neighbours` (or any [V, K]
+index array with -1 for "none").
+
+The components are then ranked by size (largest first, ties by smallest index), those below
+``min_size`` discarded, and the first ``capacity`` kept.
+
+Example:
+  >>> nbrs = grid_neighbours(spec, grid, radius=0.12, keep=~ground)
+  >>> clusters = euclidean_clusters(nbrs, grid.mask & ~ground, min_size=5, capacity=32)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxtrack import _checks
+
+Array = jax.Array
+
+__all__ = ["Clusters", "connected_components", "euclidean_clusters"]
+
+
+class Clusters(NamedTuple):
+    """Clusters of V points at capacity C, largest first.
+
+    Attributes:
+      labels: [V] int32 the cluster of each point in [0, C), -1 for none.
+      sizes: [C] int32 points per cluster (0 for empty rows).
+      mask: [C] bool rows holding a cluster.
+      num_dropped: int32 components of at least ``min_size`` points beyond the capacity.
+    """
+
+    labels: Array
+    sizes: Array
+    mask: Array
+    num_dropped: Array
+
+
+def connected_components(neighbours: Array, mask: Array, *, symmetric: bool = False) -> Array:
+    """Label each point with the smallest index of its connected component.
+
+    Args:
+      neighbours: [V, K] int32 neighbour indices, -1 for none. They need not be symmetric: an
+        edge in either list joins the two points.
+      mask: [V] bool points taking part; edges to or from masked-out points are ignored.
+      symmetric: promise that j lists i whenever i lists j (as `grid_neighbours` does), which
+        saves a scatter per round.
+
+    Returns:
+      [V] int32 component labels (the component's smallest index), V for masked-out points.
+    """
+    _checks.check_ndim("neighbours", neighbours, 2, "[V, K] neighbour indices")
+    v = _checks.shape_of(neighbours)[0]
+    _checks.check_shape("mask", mask, (v,), "[V] bool")
+    mask = jnp.asarray(mask, bool)
+    nb = jnp.asarray(neighbours, jnp.int32)
+    ok = (nb >= 0) & (nb < v) & mask[:, None]
+    safe = jnp.where(ok, nb, 0)
+    ok &= mask[safe]
+    none = jnp.int32(v)
+    labels0 = jnp.where(mask, jnp.arange(v, dtype=jnp.int32), none)
+
+    def jump(labels):
+        padded = jnp.concatenate([labels, jnp.full(1, none)])
+        return padded[labels]
+
+    def body(state):
+        labels, _ = state
+        pulled = jnp.min(jnp.where(ok, labels[safe], none), axis=1, initial=none)
+        new = jnp.minimum(labels, pulled)
+        if not symmetric:
+            # Push as well: an edge listed only at i (j's list lacks i) must still lower j.
+            new = jnp.minimum(new, jnp.full(v + 1, none).at[jnp.where(ok, safe, v)].min(
+                jnp.where(ok, labels[:, None], none))[:v])
+        new = jump(jump(new))
+        return new, jnp.any(new != labels)
+
+    labels, _ = lax.while_loop(lambda s: s[1], body, (labels0, jnp.asarray(v > 0)))
+    return labels
+
+
+def euclidean_clusters(neighbours: Array, mask: Array, *, min_size: int = 1,
+                       capacity: int, symmetric: bool = False) -> Clusters:
+    """Clusters: the connected components with at least ``min_size`` points, largest first.
+
+    Args:
+      neighbours: [V, K] int32 neighbour indices (-1 for none), e.g. from `grid_neighbours`.
+      mask: [V] bool points to cluster.
+      min_size: smallest cluster kept (points).
+      capacity: C, clusters kept (static).
+      symmetric: the neighbour lists are symmetric (see `connected_components`).
+
+    Returns:
+      `Clusters`.
+
+    Example:
+      >>> clusters = euclidean_clusters(nbrs, mask, min_size=5, capacity=32)
+      >>> clusters.labels        # [V], -1 outside the kept clusters
+    """
+    if int(capacity) != capacity or capacity < 1:
+        raise ValueError(f"capacity must be a positive integer; got {capacity}")
+    if int(min_size) != min_size or min_size < 1:
+        raise ValueError(f"min_size must be a positive integer; got {min_size}")
+    labels = connected_components(neighbours, mask, symmetric=symmetric)
+    v = labels.shape[0]
+    sizes = jax.ops.segment_sum(jnp.ones(v, jnp.int32), labels, v + 1)[:v]
+    is_root = labels == jnp.arange(v, dtype=jnp.int32)
+    score = jnp.where(is_root & (sizes >= min_size), sizes, -1)
+    order = jnp.argsort(-score, stable=True)
+    take = min(int(capacity), v)
+    roots = order[:take]
+    kept = score[roots] > 0
+    rank = jnp.full(v + 1, -1, jnp.int32).at[jnp.where(kept, roots, v)].set(
+        jnp.arange(take, dtype=jnp.int32))
+    rank = rank.at[v].set(-1)
+    point_label = rank[labels]
+    out_sizes = jnp.zeros(capacity, jnp.int32).at[:take].set(jnp.where(kept, sizes[roots], 0))
+    out_mask = jnp.zeros(capacity, bool).at[:take].set(kept)
+    num_dropped = jnp.sum(score > 0) - jnp.sum(kept)
+    return Clusters(labels=point_label, sizes=out_sizes, mask=out_mask,
+                    num_dropped=num_dropped.astype(jnp.int32))

@@ -1,0 +1,234 @@
+r"""Voxel-grid downsampling of a point cloud at fixed capacity (seed 001, section III-A).
+
+Space is divided into cubic voxels of side ``size``; every point inside a voxel is replaced by
+the centroid of the voxel's points (and its colour by their mean colour). Seed 001 uses
+0.06 m: it shrinks a Kinect cloud by an order of magnitude and makes the point density
+independent of the distance to the sensor, so a cluster's voxel count measures its real size.
+
+The voxel of a point :math:`p` is :math:`\lfloor (p - \ell) / s \rfloor` for the grid's lower
+corner :math:`\ell` and side :math:`s` (Open3D's ``voxel_down_sample`` uses
+:math:`\ell = \min_i p_i - s / 2`; pass that as ``lower`` to reproduce it).
+
+Fixed shapes: the grid is a dense box of ``shape`` cells (a sensor's frustum at 0.06 m is a few
+hundred thousand cells), and the occupied voxels are compacted, in the order of their cell
+index, into ``capacity`` rows with a mask. A dense box rather than a sort of the cells' keys
+because a scatter into a few hundred thousand cells and one prefix sum are cheaper than sorting
+the 77k points of a QVGA frame, on a CPU as on a GPU, and the box also serves as the
+voxels' neighbour lookup (`grid_neighbours`). Points outside the box, masked or non-finite
+points and the points of voxels beyond the capacity are dropped and counted.
+
+Example:
+  >>> spec = GridSpec(size=0.06, lower=(-3.0, -3.0, -0.5), shape=(100, 100, 50))
+  >>> grid = voxelise(spec, points, mask, colours, capacity=4096)
+  >>> grid.points[grid.mask]          # the voxel centroids
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxtrack import _checks
+
+Array = jax.Array
+
+__all__ = ["GridSpec", "VoxelGrid", "voxelise", "select", "grid_neighbours", "open3d_lower"]
+
+
+@dataclasses.dataclass(frozen=True)
+class GridSpec:
+    """A dense voxel grid: static (hashable), so it may be a `jit` static argument.
+
+    Attributes:
+      size: voxel side (m); 0.06 in seed 001.
+      lower: the grid's lower corner (m), in the cloud's frame.
+      shape: cells along each axis; the grid spans ``lower + size * shape``.
+    """
+
+    size: float = 0.06
+    lower: tuple[float, float, float] = (-0.5, -3.0, -0.5)
+    shape: tuple[int, int, int] = (84, 100, 50)
+
+    def __post_init__(self):
+        if not (math.isfinite(self.size) and self.size > 0):
+            raise ValueError(f"GridSpec.size must be a positive finite length; got {self.size}")
+        if len(self.lower) != 3 or not all(math.isfinite(v) for v in self.lower):
+            raise ValueError(f"GridSpec.lower must be 3 finite numbers; got {self.lower}")
+        if len(self.shape) != 3 or not all(int(n) == n and n >= 1 for n in self.shape):
+            raise ValueError(f"GridSpec.shape must be 3 positive integers; got {self.shape}")
+        if math.prod(self.shape) >= 2**31 - 1:
+            raise ValueError(f"GridSpec.shape {self.shape} has too many cells for int32 indices")
+        object.__setattr__(self, "lower", tuple(float(v) for v in self.lower))
+        object.__setattr__(self, "shape", tuple(int(n) for n in self.shape))
+
+    @property
+    def num_cells(self) -> int:
+        return math.prod(self.shape)
+
+
+class VoxelGrid(NamedTuple):
+    """Occupied voxels, compacted into a fixed capacity V, in the order of their cell index.
+
+    Attributes:
+      points: [V, 3] centroid of each voxel's points.
+      colours: [V, C] mean colour of each voxel's points (C = 0 without colours).
+      counts: [V] int32 points in each voxel.
+      cells: [V, 3] int32 cell coordinates of each voxel.
+      mask: [V] bool, occupied rows.
+      point_voxel: [N] int32 the voxel of each input point, -1 where it was dropped.
+      lookup: [num_cells] int32 the voxel row of each cell, -1 for empty cells.
+      num_dropped: int32 valid points dropped: outside the grid or beyond the capacity.
+    """
+
+    points: Array
+    colours: Array
+    counts: Array
+    cells: Array
+    mask: Array
+    point_voxel: Array
+    lookup: Array
+    num_dropped: Array
+
+
+def open3d_lower(points, size: float) -> tuple[float, float, float]:
+    """The lower corner Open3D's ``voxel_down_sample`` uses: the cloud's minimum minus half a
+    voxel (for reproducing it; a fixed corner keeps voxels stable from frame to frame)."""
+    p = np.asarray(points, dtype=np.float64)
+    return tuple(float(v) for v in p.min(axis=0) - 0.5 * size)
+
+
+def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
+             colours: Array | None = None, *, capacity: int) -> VoxelGrid:
+    r"""Downsample a cloud to its voxel centroids.
+
+    Args:
+      spec: the grid.
+      points: [N, 3] points (any frame the grid is laid in); N may be 0.
+      mask: [N] bool valid points, or None (all). Non-finite points are dropped regardless.
+      colours: [N, C] per-point colours (or any features to average), or None.
+      capacity: V, the maximum number of voxels kept (static).
+
+    Returns:
+      A `VoxelGrid`. Centroid :math:`\bar p_v = \frac{1}{n_v} \sum_{i \in v} p_i`.
+
+    Example:
+      >>> grid = voxelise(GridSpec(0.06, (-3., -3., -.5), (100, 100, 50)), pts, capacity=4096)
+    """
+    _checks.check_shape("points", points, (None, 3), "[N, 3] points")
+    n = _checks.shape_of(points)[0]
+    if mask is not None:
+        _checks.check_shape("mask", mask, (n,), "[N] bool")
+    if colours is not None:
+        _checks.check_ndim("colours", colours, 2, "[N, C] colours")
+        _checks.check_shape("colours", colours, (n, None), "[N, C] colours")
+    if int(capacity) != capacity or capacity < 1:
+        raise ValueError(f"capacity must be a positive integer; got {capacity}")
+    points = jnp.asarray(points)
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        raise TypeError(f"points must be floating; got {points.dtype}")
+    dtype = points.dtype
+    colours = jnp.zeros((n, 0), dtype) if colours is None else jnp.asarray(colours, dtype)
+    valid = jnp.all(jnp.isfinite(points), -1)
+    if mask is not None:
+        valid &= jnp.asarray(mask, bool)
+    total = spec.num_cells
+    shape = jnp.asarray(spec.shape, jnp.int32)
+    rel = (points - jnp.asarray(spec.lower, dtype)) / spec.size
+    # Clip before the cast: a point far outside would overflow int32 and wrap inside the box.
+    ijk = jnp.floor(jnp.clip(jnp.where(valid[:, None], rel, -1.0), -1.0, 2.0**30)).astype(jnp.int32)
+    inside = valid & jnp.all((ijk >= 0) & (ijk < shape), -1)
+    linear = (ijk[:, 0] * spec.shape[1] + ijk[:, 1]) * spec.shape[2] + ijk[:, 2]
+    linear = jnp.where(inside, linear, total)                       # total: the discard bin
+    occupied = jnp.zeros(total + 1, bool).at[linear].set(True)[:total]
+    (cells,) = jnp.nonzero(occupied, size=capacity, fill_value=total)
+    row = jnp.arange(capacity, dtype=jnp.int32)
+    lookup = jnp.full(total + 1, -1, jnp.int32).at[cells].set(row)[:total]
+    point_voxel = jnp.where(inside, jnp.concatenate([lookup, jnp.full(1, -1, jnp.int32)])[linear], -1)
+    seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
+    counts = jax.ops.segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
+    denom = jnp.maximum(counts, 1).astype(dtype)[:, None]
+    centroids = jax.ops.segment_sum(jnp.where(inside[:, None], points, 0), seg,
+                                    capacity + 1)[:capacity] / denom
+    mean_colour = jax.ops.segment_sum(jnp.where(inside[:, None], colours, 0), seg,
+                                      capacity + 1)[:capacity] / denom
+    vmask = cells < total
+    cell_ijk = jnp.stack([cells // (spec.shape[1] * spec.shape[2]),
+                          (cells // spec.shape[2]) % spec.shape[1],
+                          cells % spec.shape[2]], -1).astype(jnp.int32)
+    num_dropped = jnp.sum(valid) - jnp.sum(point_voxel >= 0)
+    return VoxelGrid(points=jnp.where(vmask[:, None], centroids, 0),
+                     colours=jnp.where(vmask[:, None], mean_colour, 0),
+                     counts=counts, cells=jnp.where(vmask[:, None], cell_ijk, -1), mask=vmask,
+                     point_voxel=point_voxel.astype(jnp.int32), lookup=lookup,
+                     num_dropped=num_dropped.astype(jnp.int32))
+
+
+def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
+    """The voxels of ``grid`` where ``keep`` holds, compacted into ``capacity`` rows (in order),
+    with the lookup and the points' voxels renumbered: e.g. the non-ground voxels, so that
+    clustering pays only for them. Kept voxels beyond the capacity are dropped and their points
+    counted in ``num_dropped``.
+
+    Args:
+      grid: a `VoxelGrid` of V rows; keep: [V] bool; capacity: V' (static).
+    """
+    v = grid.mask.shape[0]
+    _checks.check_shape("keep", keep, (v,), "[V] bool")
+    keep = grid.mask & jnp.asarray(keep, bool)
+    (rows,) = jnp.nonzero(keep, size=capacity, fill_value=v)
+    renumber = jnp.full(v + 1, -1, jnp.int32).at[rows].set(
+        jnp.arange(capacity, dtype=jnp.int32)).at[v].set(-1)
+    taken = rows < v
+    safe = jnp.minimum(rows, max(v - 1, 0))
+
+    def rows_of(x, fill):
+        if v == 0:
+            return jnp.full((capacity,) + x.shape[1:], fill, x.dtype)
+        return jnp.where(taken.reshape((-1,) + (1,) * (x.ndim - 1)), x[safe], fill)
+
+    lost = jnp.sum(jnp.where(keep, grid.counts, 0)) - jnp.sum(rows_of(grid.counts, 0))
+    return VoxelGrid(points=rows_of(grid.points, 0), colours=rows_of(grid.colours, 0),
+                     counts=rows_of(grid.counts, 0), cells=rows_of(grid.cells, -1), mask=taken,
+                     point_voxel=renumber[jnp.where(grid.point_voxel >= 0, grid.point_voxel, v)],
+                     lookup=renumber[jnp.where(grid.lookup >= 0, grid.lookup, v)],
+                     num_dropped=(grid.num_dropped + lost).astype(jnp.int32))
+
+
+def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
+                    keep: Array | None = None) -> Array:
+    r"""Each voxel's neighbours within ``radius`` (centroid to centroid), by grid lookup.
+
+    Two centroids closer than ``radius`` lie at most :math:`r = \lceil radius / size \rceil`
+    cells apart along each axis, so the :math:`(2r+1)^3 - 1` surrounding cells hold every
+    neighbour; only those within ``radius`` are returned.
+
+    Args:
+      spec, grid: the grid and its voxels.
+      radius: the neighbourhood radius (m), static (it sets the number of cells searched).
+      keep: [V] bool voxels that take part (e.g. the non-ground ones), or None (all occupied).
+
+    Returns:
+      [V, K] int32 neighbour rows, -1 where there is none; K = (2r+1)^3 - 1.
+    """
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius must be a positive finite length; got {radius}")
+    r = int(math.ceil(radius / spec.size - 1e-9))
+    offsets = np.array([o for o in itertools.product(range(-r, r + 1), repeat=3) if any(o)],
+                       np.int32)                                    # [K, 3]
+    keep = grid.mask if keep is None else grid.mask & keep
+    nb = grid.cells[:, None, :] + offsets[None]                     # [V, K, 3]
+    inside = jnp.all((nb >= 0) & (nb < jnp.asarray(spec.shape)), -1)
+    linear = (nb[..., 0] * spec.shape[1] + nb[..., 1]) * spec.shape[2] + nb[..., 2]
+    rows = jnp.where(inside, grid.lookup[jnp.where(inside, linear, 0)], -1)
+    ok = (rows >= 0) & keep[:, None]
+    safe = jnp.maximum(rows, 0)
+    ok &= keep[safe]
+    d2 = jnp.sum((grid.points[safe] - grid.points[:, None, :]) ** 2, -1)
+    ok &= d2 <= radius ** 2
+    return jnp.where(ok, rows, -1)
