@@ -106,6 +106,14 @@ class TrackerConfig:
       births_in_gates: an unassociated detection inside a live track's gate may start a track
         (off for people: the track would be a duplicate; on for legs, whose neighbours'
         gates reach across the 0.1-0.4 m between a person's two legs).
+      motion_term: the Mahalanobis distance of the GNN cost and gate. "position": of the
+        detected position. "position_velocity" (seed 001, section IV-B: "the Mahalanobis
+        distance of the detection position and estimated velocity from the predicted state"):
+        of the position and of the velocity it implies since the track's last estimate,
+        :math:`(z - p_{t-1}) / \Delta t`, gated with 4 degrees of freedom (see `hypothesise`).
+        Only with ``association="gnn"``.
+      distance: how the GNN cost weighs it: "squared" (:math:`\gamma d^2`) or "mahalanobis"
+        (:math:`\gamma d`, seed 001's eq. 2 writes the distance, not its square).
     """
 
     capacity: int = 16
@@ -122,6 +130,8 @@ class TrackerConfig:
     num_features: int = 0
     merge_distance: float = 0.0
     births_in_gates: bool = False
+    motion_term: str = "position"
+    distance: str = "squared"
 
     def __post_init__(self):
         _checks.check_options("association", (self.association,), ("gnn", "jpda", "nn_jpda"))
@@ -129,6 +139,12 @@ class TrackerConfig:
         _checks.check_options("filter", (self.filter,), ("kf", "ukf"))
         _checks.check_options("heading", (self.heading,), ("velocity", "ar"))
         _checks.check_options("motion", (self.motion,), ("cv", "imm"))
+        _checks.check_options("motion_term", (self.motion_term,),
+                              ("position", "position_velocity"))
+        _checks.check_options("distance", (self.distance,), ("squared", "mahalanobis"))
+        if self.motion_term == "position_velocity" and self.association != "gnn":
+            raise ValueError('motion_term="position_velocity" needs association="gnn" (the '
+                             'JPDA likelihoods are those of the position)')
         if self.capacity < 1:
             raise ValueError(f"capacity must be >= 1; got {self.capacity}")
         if not 1 <= self.confirm_hits <= self.confirm_window <= 30:
@@ -426,6 +442,9 @@ class Hypotheses(NamedTuple):
       modes: ``motion="imm"``: the mode-matched predictions (`predict_modes`), means
         [K, 2, 4], covs [K, 2, 4, 4], log_mode_probs [K, 2] (the mixed :math:`\log c_j`), of
         which ``predicted`` is the combined estimate; None for "cv".
+      motion_d2: [K, M] the squared Mahalanobis distance of the GNN cost: that of
+        ``innovations`` for ``motion_term="position"``, of position and velocity for
+        "position_velocity".
     """
 
     predicted: Gaussian
@@ -440,6 +459,7 @@ class Hypotheses(NamedTuple):
     confidence: Array
     features: Array
     modes: imm.IMMState | None = None
+    motion_d2: Array | None = None
 
 
 class Association(NamedTuple):
@@ -630,13 +650,39 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
     sensor = jnp.clip(detections.sensor, 0, R.shape[0] - 1)
     inn = association.innovations(predicted.mean, predicted.cov, zs, _position(dtype), R,
                                   sensor=sensor, track_mask=live, meas_mask=mask)
-    gated = association.gate(inn.d2, 2, params.gate_prob, live, mask)
+    if cfg.motion_term == "position_velocity":
+        d2 = _position_velocity_d2(state.mean[:, :2], predicted, zs, R[sensor], params.dt)
+        d2 = jnp.where(live[:, None] & mask[None, :], d2, jnp.inf)
+        gated = association.gate(d2, 4, params.gate_prob, live, mask)
+    else:
+        d2 = inn.d2
+        gated = association.gate(d2, 2, params.gate_prob, live, mask)
     features = detections.features.astype(dtype)
     conf_app = (appearance.confidence(state.appearance, features) if cfg.num_features
                 else jnp.zeros((K, M), dtype))
     modes = _predict_modes(state, params) if cfg.motion == "imm" else None
     return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
-                      detections.confidence, features, modes)
+                      detections.confidence, features, modes, d2)
+
+
+def _position_velocity_d2(previous, predicted, zs, R, dt):
+    r"""[K, M] squared Mahalanobis distance of :math:`y = (z - \hat p,\ (z - p_{t-1}) / \Delta t
+    - \hat v)` under :math:`S = \hat P + \mathrm{diag}(R, 2 R / \Delta t^2)`: the velocity
+    measured by two positions has twice a position's noise over :math:`\Delta t^2` (open_ptrack,
+    seed 001's implementation, measures the velocity the same way)."""
+    dt = jnp.maximum(jnp.asarray(dt, zs.dtype), 1e-6)
+    y_pos = zs[None, :, :] - predicted.mean[:, None, :2]                     # [K, M, 2]
+    y_vel = (zs[None, :, :] - previous[:, None, :]) / dt - predicted.mean[:, None, 2:]
+    y = jnp.concatenate([y_pos, y_vel], -1)                                 # [K, M, 4]
+    zero = jnp.zeros_like(R)
+    noise = jnp.concatenate([jnp.concatenate([R, zero], -1),
+                             jnp.concatenate([zero, 2.0 * R / dt ** 2], -1)], -2)  # [M, 4, 4]
+    S = predicted.cov[:, None] + noise[None]                                 # [K, M, 4, 4]
+    S = 0.5 * (S + jnp.swapaxes(S, -1, -2))
+    chol = jnp.linalg.cholesky(S)
+    w = jax.scipy.linalg.solve_triangular(chol, y[..., None], lower=True)[..., 0]
+    d2 = jnp.sum(w ** 2, -1)
+    return jnp.where(jnp.isfinite(d2), d2, jnp.inf)
 
 
 def associate(hypotheses: Hypotheses, params: TrackerParams) -> Association:
@@ -654,7 +700,9 @@ def associate_gnn(hypotheses: Hypotheses, params: TrackerParams) -> Association:
     r"""GNN (seed 001): the optimal assignment inside the gates, then a Kalman update per track.
 
     The cost of pairing track k with detection j is seed 001's eq. 2,
-    :math:`C_{kj} = \gamma d^2_{kj} - \alpha c^{app}_{kj} - \beta c^{det}_j` (``gamma``,
+    :math:`C_{kj} = \gamma d^2_{kj} - \alpha c^{app}_{kj} - \beta c^{det}_j`, or with
+    :math:`\gamma d_{kj}` when ``config.distance="mahalanobis"`` (:math:`d^2` of position and
+    velocity when ``config.motion_term="position_velocity"``) (``gamma``,
     ``alpha``, ``beta`` of the params), minimised over the assignments that use gated pairs only
     (`jaxtrack.association.gnn`); each assigned track gets a Joseph-form Kalman update with its
     detection and that detection's sensor noise (`jaxtrack.association.nn_update`).
@@ -673,7 +721,10 @@ def associate_gnn(hypotheses: Hypotheses, params: TrackerParams) -> Association:
     _check_stage(params, hypotheses=hypotheses)
     h = hypotheses
     dtype = h.zs.dtype
-    cost = (params.gamma * h.innovations.d2 - params.alpha * h.appearance
+    d2 = h.innovations.d2 if h.motion_d2 is None else h.motion_d2
+    motion_cost = (jnp.sqrt(jnp.maximum(d2, 0.0)) if params.config.distance == "mahalanobis"
+                   else d2)
+    cost = (params.gamma * motion_cost - params.alpha * h.appearance
             - params.beta * h.confidence.astype(dtype)[None, :])
     col = association.gnn(jnp.where(h.gated, cost, jnp.inf), h.gated, track_mask=h.live,
                           meas_mask=h.mask)

@@ -402,6 +402,50 @@ def test_associate_gnn_is_the_brute_force_optimum_of_the_three_term_cost():
     check_hard_update(assoc, col, mean, cov, det, live)
 
 
+def reference_position_velocity_d2(state, det, params):
+    """Seed 001's motion distance in numpy: position and implied velocity against the
+    prediction, S = P + diag(R, 2 R / dt^2)."""
+    mean, cov, live = reference_prediction(state, params)
+    prev = np.asarray(state.mean)[:, :2]
+    z, present = np.asarray(det.positions), np.asarray(det.mask)
+    present = present & np.all(np.isfinite(z), -1)
+    K, M = len(mean), len(z)
+    d2 = np.full((K, M), np.inf)
+    for k in np.flatnonzero(live):
+        for j in np.flatnonzero(present):
+            r2 = SENSOR_STD[np.asarray(det.sensor)[j]] ** 2
+            y = np.r_[z[j] - mean[k, :2], (z[j] - prev[k]) / 0.1 - mean[k, 2:]]
+            S = cov[k] + np.diag([r2, r2, 2 * r2 / 0.01, 2 * r2 / 0.01])
+            d2[k, j] = y @ np.linalg.solve(S, y)
+    return d2, d2 <= chi2.ppf(float(params.gate_prob), 4)
+
+
+@pytest.mark.parametrize("distance", ["squared", "mahalanobis"])
+def test_gnn_with_seed_001s_position_and_velocity_distance_is_the_brute_force_optimum(distance):
+    params = stage_params(num_features=3, alpha=0.7, beta=2.0, motion_term="position_velocity",
+                          distance=distance)
+    state, det = stage_scene(params)
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    d2, gated = reference_position_velocity_d2(state, det, params)
+    finite = np.isfinite(d2)
+    np.testing.assert_allclose(np.asarray(hyp.motion_d2)[finite], d2[finite], rtol=1e-9)
+    np.testing.assert_array_equal(np.asarray(hyp.gated), gated)
+    assoc = tracker.associate_gnn(hyp, params)
+    motion = np.sqrt(d2) if distance == "mahalanobis" else d2
+    cost = motion - 0.7 * np.asarray(hyp.appearance) - 2.0 * np.asarray(det.confidence)[None]
+    col = brute_force_gnn(cost, gated)
+    assert (col >= 0).sum() >= 2
+    mean, cov, live = reference_prediction(state, params)
+    check_hard_update(assoc, col, mean, cov, det, live)
+
+
+def test_velocity_term_needs_gnn():
+    with pytest.raises(ValueError, match="position_velocity"):
+        tracking.TrackerConfig(association="jpda", motion_term="position_velocity")
+    with pytest.raises(ValueError, match="distance"):
+        tracking.TrackerConfig(association="gnn", distance="l1")
+
+
 def test_associate_jpda_is_the_brute_force_marginals_and_the_mixture_update():
     params = stage_params("jpda", p_detect=0.9)
     state, det = stage_scene(params)
