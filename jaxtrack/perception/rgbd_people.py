@@ -16,6 +16,9 @@ One frame (seed 001, section III), each stage a function of its own module:
    section III-B, or one candidate per cluster when ``heads.subcluster`` is False.
 6. **Appearance**: each detection's normalised RGB histogram (``histogram_bins`` per channel)
    of its voxels' colours, the input of the tracker's online colour classifier.
+7. **Confidence** (`hog`): with an RGB image, its camera and a linear SVM, the HOG person
+   confidence of each detection's theoretical bounding box, from the head to the ground; without
+   them, 1.
 
 The frame's state is the ground plane, carried to the next frame. Everything is fixed-shape:
 the step is jittable and vmappable over episodes.
@@ -37,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxtrack import _checks
-from jaxtrack.perception import euclidean_clustering, ground_plane, head_subclustering
+from jaxtrack.perception import euclidean_clustering, ground_plane, head_subclustering, hog
 from jaxtrack.perception.euclidean_clustering import Clusters, connected_components
 from jaxtrack.perception.ground_plane import PlaneFit
 from jaxtrack.perception.head_subclustering import HeadConfig, HeadDetections
@@ -71,6 +74,7 @@ class RGBDPeopleConfig:
         the floor (m).
       heads: head sub-clustering parameters.
       histogram_bins: colour histogram bins per RGB channel.
+      hog: the HOG descriptor's geometry.
     """
 
     grid: GridSpec = GridSpec(0.06, (0.3, -3.0, -0.3), (80, 100, 45))
@@ -86,6 +90,7 @@ class RGBDPeopleConfig:
     max_base_height: float = 1.0
     heads: HeadConfig = HeadConfig()
     histogram_bins: int = 4
+    hog: hog.HOGConfig = hog.HOGConfig()
 
     def __post_init__(self):
         for name in ("voxel_capacity", "foreground_capacity", "num_hypotheses", "min_cluster_size",
@@ -115,6 +120,10 @@ class RGBDPeopleFrame(NamedTuple):
       people: `HeadDetections` at capacity H (positions on the ground plane, in the cloud's
         frame).
       histograms: [H, b^3] normalised colour histograms (zeros for empty rows).
+      confidence: [H] the HOG person confidence in (0, 1) (1 without an SVM; 0 for empty
+        rows).
+      boxes: [H, 4] the theoretical bounding boxes (top, left, bottom, right) in pixels (zeros
+        without a camera).
       grid: the `VoxelGrid` of the whole cloud.
       ground: the `PlaneFit` (over ``grid``).
       foreground: the `VoxelGrid` of the voxels above the ground, which the clusters, the
@@ -124,6 +133,8 @@ class RGBDPeopleFrame(NamedTuple):
 
     people: HeadDetections
     histograms: Array
+    confidence: Array
+    boxes: Array
     grid: VoxelGrid
     ground: PlaneFit
     foreground: VoxelGrid
@@ -138,8 +149,9 @@ def init_state(config: RGBDPeopleConfig = RGBDPeopleConfig(), height: float = 0.
 
 
 def detect(config: RGBDPeopleConfig, state: RGBDPeopleState, key: Array, points: Array,
-           mask: Array | None, colours: Array | None, viewpoint: Array
-           ) -> tuple[RGBDPeopleState, RGBDPeopleFrame]:
+           mask: Array | None, colours: Array | None, viewpoint: Array, *,
+           image: Array | None = None, camera: hog.PinholeCamera | None = None,
+           svm: hog.LinearSVM | None = None) -> tuple[RGBDPeopleState, RGBDPeopleFrame]:
     """Detect the people in one RGB-D point cloud.
 
     Args:
@@ -151,6 +163,10 @@ def detect(config: RGBDPeopleConfig, state: RGBDPeopleState, key: Array, points:
       mask: [N] bool valid depth, or None. Non-finite points are ignored.
       colours: [N, 3] RGB in [0, 1], or None (histograms of zeros).
       viewpoint: [3] the camera's position in the same frame.
+      image: [h, w, 3] the RGB image registered to the cloud, for the HOG confidence.
+      camera: `hog.PinholeCamera` of ``image`` in the cloud's frame.
+      svm: `hog.LinearSVM` (e.g. `hog.load_svm()`); the confidence is computed when
+        ``image``, ``camera`` and ``svm`` are all given.
 
     Returns:
       (new state, `RGBDPeopleFrame`).
@@ -187,7 +203,19 @@ def detect(config: RGBDPeopleConfig, state: RGBDPeopleState, key: Array, points:
                                                  num_clusters=cfg.cluster_capacity)
     hist = colour_histograms(fg.colours, fg.counts, people.point_detection,
                              cfg.heads.max_detections, cfg.histogram_bins)
-    return RGBDPeopleState(fit.plane), RGBDPeopleFrame(people, hist, grid, fit, fg, clusters)
+    H = cfg.heads.max_detections
+    boxes = jnp.zeros((H, 4), dtype)
+    confidence = people.mask.astype(dtype)
+    if camera is not None:
+        foot = people.head - people.height[:, None] * fit.plane[:3]
+        boxes = hog.person_box(camera, people.head, foot, cfg.hog).astype(dtype)
+        boxes = jnp.where(people.mask[:, None], boxes, 0)
+    if image is not None and camera is not None and svm is not None:
+        _checks.check_ndim("image", image, 3, "[h, w, 3] RGB image")
+        feats = jax.vmap(lambda b: hog.hog(hog.crop(image, b, cfg.hog), cfg.hog))(boxes)
+        confidence = jnp.where(people.mask, hog.svm_confidence(svm, feats.astype(dtype)), 0)
+    frame = RGBDPeopleFrame(people, hist, confidence, boxes, grid, fit, fg, clusters)
+    return RGBDPeopleState(fit.plane), frame
 
 
 def colour_histograms(colours: Array, weights: Array, member: Array, num_groups: int,

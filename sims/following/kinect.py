@@ -332,11 +332,12 @@ def layout_primitives(layout: Layout, wall_height: float = 2.6,
             c = np.asarray(item["centre"])
             back = c + np.array([0.0, 0.5 * item["size"][1] * (1 if c[1] > 0 else -1)])
             boxes.append(((*back, top + 0.25), (0.5 * item["size"][0], 0.02, 0.25), wood))
-    f = lambda rows, i: jnp.asarray(np.array([r[i] for r in rows], float).reshape(
-        len(rows), -1), dtype)
-    return Primitives(f(caps, 0), f(caps, 1), f(caps, 2)[:, 0] if caps else jnp.zeros(0, dtype),
-                      f(caps, 3), f(boxes, 0), f(boxes, 1), jnp.zeros(len(boxes), dtype),
-                      f(boxes, 2), jnp.asarray([0.55, 0.5, 0.45], dtype))
+    def f(rows, i, width=3):
+        return jnp.asarray(np.array([r[i] for r in rows], float).reshape(len(rows), width), dtype)
+
+    return Primitives(f(caps, 0), f(caps, 1), f(caps, 2, 1)[:, 0], f(caps, 3), f(boxes, 0),
+                      f(boxes, 1), jnp.zeros(len(boxes), dtype), f(boxes, 2),
+                      jnp.asarray([0.55, 0.5, 0.45], dtype))
 
 
 def concat(*parts: Primitives) -> Primitives:

@@ -1,0 +1,197 @@
+r"""Histograms of oriented gradients and a linear SVM: the person confidence of seed 001.
+
+Seed 001 scores each sub-cluster by "a HOG people detector [Dalal and Triggs] applied to the
+part of the RGB image corresponding to the cluster theoretical bounding box, namely the bounding
+box that should contain the whole person, from the head to the ground". Here:
+
+- `person_box`: that box, from the head point and the foot point projected by a pinhole camera,
+  with Dalal and Triggs' 1:2 aspect and a margin;
+- `crop`: the box resampled (bilinear) to the detection window, 128 x 64 pixels;
+- `hog`: Dalal and Triggs' descriptor, as scikit-image computes it: centred [-1, 0, 1]
+  gradients, per pixel the colour channel of largest magnitude, unsigned orientation in 9 bins
+  of 20 deg (hard assignment), 8 x 8 pixel cells (mean magnitude per bin), 2 x 2 cell blocks
+  normalised by L2-Hys (:math:`v / \sqrt{\|v\|^2 + \epsilon^2}`, clipped at 0.2,
+  renormalised), all blocks at a stride of one cell: 7 x 15 blocks x 36 = 3780 features;
+- `LinearSVM`: the detector's linear SVM, :math:`s = w^T f + b`, and its confidence
+  :math:`\sigma(s)` in (0, 1), which the tracker weighs (seed 001's :math:`c_{HOG}`).
+
+The SVM is trained offline on simulated crops (``jaxtrack train-hog``, scikit-learn's
+`LinearSVC`); its weights ship in ``jaxtrack/perception/data``.
+
+Example:
+  >>> box = person_box(camera, head, foot)
+  >>> f = hog(crop(image, box))
+  >>> c = svm_confidence(load_svm(), f)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.resources
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxtrack import _checks
+
+Array = jax.Array
+
+__all__ = ["HOGConfig", "PinholeCamera", "LinearSVM", "hog", "crop", "person_box", "project",
+           "svm_confidence", "load_svm", "num_features"]
+
+
+@dataclasses.dataclass(frozen=True)
+class HOGConfig:
+    """Descriptor geometry (static). Dalal and Triggs' defaults.
+
+    Attributes:
+      window: (rows, cols) of the detection window; 128 x 64.
+      cell: pixels per cell side; 8.
+      block: cells per block side; 2.
+      orientations: unsigned orientation bins over 180 deg; 9.
+      margin: the person box's extra height above the head and below the feet, as a fraction
+        of the person's height in the image (Dalal and Triggs' windows keep about 16 of 128
+        rows around a 96-row person: 1/12 each side).
+    """
+
+    window: tuple[int, int] = (128, 64)
+    cell: int = 8
+    block: int = 2
+    orientations: int = 9
+    margin: float = 1.0 / 12.0
+
+
+def num_features(config: HOGConfig = HOGConfig()) -> int:
+    """Length of the descriptor: blocks x block cells x orientations (3780 by default)."""
+    rows, cols = config.window[0] // config.cell, config.window[1] // config.cell
+    b = config.block
+    return (rows - b + 1) * (cols - b + 1) * b * b * config.orientations
+
+
+class PinholeCamera(NamedTuple):
+    """A pinhole camera in the frame of the cloud.
+
+    Attributes:
+      focal: [2] (fx, fy) pixels; principal: [2] (cx, cy) pixels (column, row);
+      position: [3]; rotation: [3, 3] whose columns are the optical x (right), y (down) and z
+      (forward) axes.
+    """
+
+    focal: Array
+    principal: Array
+    position: Array
+    rotation: Array
+
+
+class LinearSVM(NamedTuple):
+    """A linear SVM: ``weights`` [F], ``bias`` []."""
+
+    weights: Array
+    bias: Array
+
+
+def project(camera: PinholeCamera, points: Array) -> tuple[Array, Array]:
+    """[..., 2] pixel (column, row) of [..., 3] points, and their depth [...] along the axis."""
+    rel = (points - camera.position) @ camera.rotation
+    z = rel[..., 2]
+    safe = jnp.where(jnp.abs(z) > 1e-9, z, 1e-9)
+    uv = rel[..., :2] / safe[..., None] * camera.focal + camera.principal
+    return uv, z
+
+
+def person_box(camera: PinholeCamera, head: Array, foot: Array,
+               config: HOGConfig = HOGConfig()) -> Array:
+    """The theoretical bounding box (top, left, bottom, right) in pixels, [..., 4], of a person
+    whose head top is ``head`` [..., 3] and whose feet are at ``foot`` [..., 3]: from the head
+    to the ground plus ``margin``, centred on the head's column, with the window's aspect."""
+    (uh, zh), (uf, zf) = project(camera, head), project(camera, foot)
+    top, bottom = uh[..., 1], uf[..., 1]
+    height = jnp.maximum(bottom - top, 1.0)
+    top = top - config.margin * height
+    bottom = bottom + config.margin * height
+    width = (bottom - top) * config.window[1] / config.window[0]
+    centre = 0.5 * (uh[..., 0] + uf[..., 0])
+    return jnp.stack([top, centre - 0.5 * width, bottom, centre + 0.5 * width], -1)
+
+
+def crop(image: Array, box: Array, config: HOGConfig = HOGConfig()) -> Array:
+    """Resample the box (top, left, bottom, right) of ``image`` [H, W, C] to the window
+    [rows, cols, C] (bilinear, pixel centres; outside the image the nearest edge pixel)."""
+    _checks.check_ndim("image", image, 3, "[H, W, C] image")
+    _checks.check_shape("box", box, (4,), "[4] (top, left, bottom, right)")
+    rows, cols = config.window
+    H, W = image.shape[:2]
+    dtype = image.dtype if jnp.issubdtype(image.dtype, jnp.floating) else jnp.float32
+    img = image.astype(dtype)
+    box = jnp.asarray(box, dtype)
+    r = box[0] + (jnp.arange(rows, dtype=dtype) + 0.5) * (box[2] - box[0]) / rows - 0.5
+    c = box[1] + (jnp.arange(cols, dtype=dtype) + 0.5) * (box[3] - box[1]) / cols - 0.5
+    r = jnp.clip(r, 0, H - 1)
+    c = jnp.clip(c, 0, W - 1)
+    r0 = jnp.clip(jnp.floor(r), 0, max(H - 2, 0)).astype(jnp.int32)
+    c0 = jnp.clip(jnp.floor(c), 0, max(W - 2, 0)).astype(jnp.int32)
+    fr = (r - r0)[:, None, None]
+    fc = (c - c0)[None, :, None]
+    r1, c1 = jnp.minimum(r0 + 1, H - 1), jnp.minimum(c0 + 1, W - 1)
+    top = img[r0][:, c0] * (1 - fc) + img[r0][:, c1] * fc
+    bot = img[r1][:, c0] * (1 - fc) + img[r1][:, c1] * fc
+    return top * (1 - fr) + bot * fr
+
+
+def hog(window: Array, config: HOGConfig = HOGConfig()) -> Array:
+    """Dalal and Triggs' descriptor of a [rows, cols] or [rows, cols, C] window (module
+    docstring), equal to ``skimage.feature.hog(window, 9, (8, 8), (2, 2), "L2-Hys",
+    channel_axis=-1)``.
+
+    Returns:
+      [F] features (`num_features`), ordered (block row, block col, cell row, cell col, bin).
+
+    Example:
+      >>> f = hog(crop(image, box))       # [3780]
+    """
+    img = jnp.asarray(window)
+    if img.ndim == 2:
+        img = img[..., None]
+    _checks.check_ndim("window", img, 3, "[rows, cols] or [rows, cols, C] window")
+    dtype = img.dtype if jnp.issubdtype(img.dtype, jnp.floating) else jnp.float32
+    img = img.astype(dtype)
+    R, C = img.shape[:2]
+    g_row = jnp.zeros_like(img).at[1:-1].set(img[2:] - img[:-2])
+    g_col = jnp.zeros_like(img).at[:, 1:-1].set(img[:, 2:] - img[:, :-2])
+    mag = jnp.hypot(g_row, g_col)
+    best = jnp.argmax(mag, axis=-1)[..., None]                       # channel of largest gradient
+    g_row = jnp.take_along_axis(g_row, best, -1)[..., 0]
+    g_col = jnp.take_along_axis(g_col, best, -1)[..., 0]
+    mag = jnp.take_along_axis(mag, best, -1)[..., 0]
+    n = config.orientations
+    angle = jnp.mod(jnp.rad2deg(jnp.arctan2(g_row, g_col)), 180.0)
+    b = jnp.clip(jnp.floor(angle / (180.0 / n)), 0, n - 1).astype(jnp.int32)
+    cs = config.cell
+    nr, nc = R // cs, C // cs
+    onehot = jax.nn.one_hot(b, n, dtype=dtype) * mag[..., None]        # [R, C, n]
+    cells = onehot[:nr * cs, :nc * cs].reshape(nr, cs, nc, cs, n).sum((1, 3)) / (cs * cs)
+    bs = config.block
+    br, bc = nr - bs + 1, nc - bs + 1
+    blocks = jnp.stack([jnp.stack([cells[i:i + bs, j:j + bs] for j in range(bc)])
+                        for i in range(br)])                           # [br, bc, bs, bs, n]
+    eps = 1e-5
+    v = blocks / jnp.sqrt(jnp.sum(blocks ** 2, (2, 3, 4), keepdims=True) + eps ** 2)
+    v = jnp.minimum(v, 0.2)
+    v = v / jnp.sqrt(jnp.sum(v ** 2, (2, 3, 4), keepdims=True) + eps ** 2)
+    return v.reshape(-1)
+
+
+def svm_confidence(svm: LinearSVM, features: Array) -> Array:
+    r"""Confidence :math:`\sigma(w^T f + b)` of [..., F] features, in (0, 1)."""
+    w = jnp.asarray(svm.weights)
+    return jax.nn.sigmoid(features @ w.astype(features.dtype) + jnp.asarray(svm.bias,
+                                                                            features.dtype))
+
+
+def load_svm(name: str = "hog_svm.npz", dtype=jnp.float32) -> LinearSVM:
+    """The shipped SVM (``jaxtrack train-hog`` writes it), as a `LinearSVM`."""
+    ref = importlib.resources.files("jaxtrack.perception") / "data" / name
+    with importlib.resources.as_file(ref) as path, np.load(path) as data:
+        return LinearSVM(jnp.asarray(data["weights"], dtype), jnp.asarray(data["bias"], dtype))
