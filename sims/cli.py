@@ -1,5 +1,6 @@
-"""Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach``,
-``jaxtrack run person-following``, ``jaxtrack track`` and ``jaxtrack evaluate``.
+"""Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach``, ``jaxtrack run
+person-following``, ``jaxtrack run rgbd-people``, ``jaxtrack track``, ``jaxtrack evaluate``,
+``jaxtrack train-legs`` and ``jaxtrack train-hog``.
 
 The console command lives in `sims`, the top layer, so that importing `jaxtrack` never imports
 MuJoCo; only the ``run`` commands and the scene demos import it. ``demo`` (``all``, ``humanoid``
@@ -7,7 +8,8 @@ or ``following``) dispatches to `sims.demo.run`, ``demo filters`` to `jaxtrack.d
 humanoid-reach`` to `run_humanoid_reach`, ``run person-following`` to
 `sims.following.report.run_person_following`, ``track`` (the sensing step and a user estimator
 replayed on a ROS bag) to `jaxtrack.io.replay.track_bag`, ``evaluate`` (CLEAR MOT of a tracks
-file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`.
+file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`, ``run rgbd-people``
+and ``train-hog`` to `sims.following.crowd_report`.
 """
 
 from __future__ import annotations
@@ -102,6 +104,32 @@ def main(argv: list[str] | None = None) -> int:
     follow.add_argument("--batch-size", type=int, default=None)
     follow.add_argument("--out", type=Path, default=None, help="directory for plots and metrics")
     follow.add_argument("--seed", type=int, default=0)
+    rgbd = scenes.add_parser("rgbd-people", help="seed 001: a robot drives among 2-6 people "
+                             "and tracks them with its Kinect (voxel grid, ground plane, "
+                             "head sub-clustering, HOG, GNN); the full pipeline and its "
+                             "ablations")
+    rgbd.add_argument("--episodes", type=int, default=32, help="episodes per pipeline")
+    rgbd.add_argument("--scenario", choices=("simple", "complex", "obstacles"),
+                      default="complex")
+    rgbd.add_argument("--duration", type=float, default=20.0, help="seconds per episode")
+    rgbd.add_argument("--resolution", type=int, nargs=2, default=(160, 120),
+                      metavar=("WIDTH", "HEIGHT"),
+                      help="Kinect image size (seed 001 acquired 160 x 120; QVGA 320 240)")
+    rgbd.add_argument("--ablations", nargs="+", default=None,
+                      choices=("full", "no-sub-clustering", "no-velocity", "no-appearance",
+                               "no-confidence"),
+                      help="pipelines to run (default: all five)")
+    rgbd.add_argument("--batch-size", type=int, default=None)
+    rgbd.add_argument("--out", type=Path, default=None,
+                      help="directory for the table, the metrics and a figure of one frame")
+    rgbd.add_argument("--seed", type=int, default=0)
+    th = sub.add_parser("train-hog", help="train the RGB-D detector's HOG + linear SVM person "
+                                          "confidence on simulated Kinect crops")
+    th.add_argument("--frames", type=int, default=1500, help="simulated frames (all scenarios)")
+    th.add_argument("--out", type=Path, required=True, help=".npz to write (the shipped one is "
+                    "jaxtrack/perception/data/hog_svm.npz)")
+    th.add_argument("--seed", type=int, default=0)
+    th.add_argument("--c", type=float, default=0.01, help="the SVM's C (Dalal and Triggs: 0.01)")
     trk = sub.add_parser("track", help="replay leg detection + a tracker on a ROS 1 / ROS 2 bag; "
                                        "writes tracks.csv and top_view.png")
     trk.add_argument("--bag", type=Path, required=True,
@@ -272,6 +300,17 @@ def main(argv: list[str] | None = None) -> int:
         return _evaluate(parser, args)
     if args.command == "train-legs":
         return _train_legs(parser, args)
+    if args.command == "train-hog":
+        if args.frames < 3 or not (math.isfinite(args.c) and args.c > 0):
+            parser.error("--frames must be at least 3 and --c positive")
+        _check_writable(parser, args.out)
+        from sims.following.crowd_report import train_hog
+
+        res = train_hog(args.frames, args.out, args.seed, args.c)
+        print(f"HOG + linear SVM: {res['positives']} positive and {res['negatives']} negative "
+              f"crops; accuracy {res['train_accuracy']:.1%} (train), "
+              f"{res['test_accuracy']:.1%} (held-out fifth); written to {args.out}")
+        return 0
     if args.command == "demo":
         if args.which != "filters":
             if args.episodes is not None or args.steps is not None:
@@ -289,6 +328,23 @@ def main(argv: list[str] | None = None) -> int:
         from jaxtrack import demo as demo_mod
 
         demo_mod.run(episodes, steps, args.seed)
+        return 0
+    if args.scene == "rgbd-people":
+        if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
+            parser.error("--episodes and --duration must be positive (and --duration finite)")
+        if min(args.resolution) < 8:
+            parser.error(f"--resolution must be at least 8 x 8 pixels; got "
+                         f"{args.resolution[0]} x {args.resolution[1]}")
+        if args.batch_size is not None and args.batch_size < 1:
+            parser.error(f"--batch-size must be positive; got {args.batch_size}")
+        if args.out is not None:
+            _check_writable(parser, args.out)
+        from sims.following.crowd_report import run_rgbd_people
+
+        names = tuple(a.replace("-", " ") for a in (args.ablations or (
+            "full", "no-sub-clustering", "no-velocity", "no-appearance", "no-confidence")))
+        run_rgbd_people(args.episodes, args.scenario, args.duration, tuple(args.resolution),
+                        names, args.seed, args.out, args.batch_size)
         return 0
     if args.scene == "person-following":
         if args.episodes < 1 or args.particles < 2 or not (math.isfinite(args.duration)

@@ -81,7 +81,7 @@ WALKING, STANDING = 0, 1
 
 @dataclasses.dataclass(frozen=True)
 class TrackerConfig:
-    """Static configuration (changing it recompiles).
+    r"""Static configuration (changing it recompiles).
 
     Attributes:
       capacity: K track slots.

@@ -64,7 +64,7 @@ CLOTHING = np.array([
 
 @dataclasses.dataclass(frozen=True)
 class KinectConfig:
-    """The camera (static: a `jit` static argument).
+    r"""The camera (static: a `jit` static argument).
 
     Attributes:
       width, height: image size (pixels); QVGA 320 x 240.
@@ -185,7 +185,7 @@ def rays(cfg: KinectConfig, rot: Array) -> Array:
 
 
 def render(cfg: KinectConfig, eye: Array, rot: Array, prims: Primitives) -> Frame:
-    """The clean depth and colour images (module docstring).
+    r"""The clean depth and colour images (module docstring).
 
     Args:
       cfg: `KinectConfig`; eye: [3] camera position; rot: [3, 3] camera rotation (columns:
@@ -348,7 +348,7 @@ def concat(*parts: Primitives) -> Primitives:
 
 
 def _capsules(eye, d, a, b, radius):
-    """[R, Nc] ray parameter of the first hit of each ray with each capsule (inf: none).
+    r"""[R, Nc] ray parameter of the first hit of each ray with each capsule (inf: none).
 
     The ray :math:`e + t d` hits the cylinder part where
     :math:`|(o + t d) - ((o + t d) \cdot \hat u) \hat u|^2 = r^2` (:math:`o = e - a`,
