@@ -23,9 +23,12 @@ who interact; the same with obstacles (chairs, a whiteboard). Here, per episode:
   classifier per track fed by the detections' RGB histograms.
 - **Ground truth**: a person counts in a frame when at least ``min_visible`` of the pixels they
   would cover unoccluded show them with a depth (seed 001 annotated the people visible in its
-  images; a person beyond the Kinect's range has no depth). A person less visible than that,
-  but not hidden, is *ignored*, as MOTChallenge ignores its hard cases: a track or a detection
-  near them and near nobody visible is neither a hit nor a false positive.
+  images; a person beyond the Kinect's range has no depth). A person in the camera's field of
+  view and range but less visible than that, or hidden, is *ignored*, as MOTChallenge ignores
+  its hard cases: a track or a detection near them and near nobody visible is neither a hit nor
+  a false positive (a track kept through an occlusion is not an error, nor required).
+- **The tracker's output**: the confirmed tracks inside the camera's field of view (tracks
+  coasting outside it are kept, not reported).
 - **Track births**: an unassociated detection confident enough starts a track even inside
   another track's gate (seed 001: "if there are unassociated detections with HOG confidence
   above a security threshold, new tracks are created"); two tracks closer than 0.3 m are merged.
@@ -284,6 +287,18 @@ def _person_pixels(cfg, hit, valid, P):
     return jax.ops.segment_sum(jnp.ones_like(h), who, P + 1)[:P]
 
 
+def _in_view(cam, eye, rot, xy, margin=0.3):
+    """[N] people standing at ground points ``xy`` whose bodies (``margin`` around the point)
+    reach into the camera's horizontal field of view and depth range."""
+    axis = rot[:2, 2] / jnp.maximum(jnp.linalg.norm(rot[:2, 2]), 1e-9)
+    rel = xy - eye[:2]
+    along = rel @ axis
+    across = rel @ jnp.stack([-axis[1], axis[0]])
+    rng = jnp.linalg.norm(rel, axis=-1)
+    return (jnp.abs(across) <= along * math.tan(0.5 * cam.fov_x) + margin) \
+        & (rng >= cam.min_range - margin) & (rng <= cam.max_range + margin)
+
+
 def _expected_pixels(cam, depth, stature):
     """Pixels of an unoccluded person at ``depth`` along the axis: a 0.45 m x stature
     silhouette filling 75 % of its box."""
@@ -347,11 +362,13 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
         visible = people.mask & (shown >= cfg.min_visible
                                  * _expected_pixels(cam, along, people.stature))
         confirmed = tracks.status == tracking.CONFIRMED
-        partial = people.mask & ~visible & (shown > 0)
+        in_view = _in_view(cam, eye, rot, crowd.pos)
+        partial = people.mask & ~visible & (in_view | (shown > 0))
+        shown_track = confirmed & _in_view(cam, eye, rot, tracks.mean[:, :2])
         rec = dict(truth=crowd.pos, visible=visible, partial=partial, detections=world,
                    det_mask=dets.mask,
                    confidence=seen.confidence, track_pos=tracks.mean[:, :2],
-                   track_id=jnp.where(confirmed, tracks.id, -1), track_mask=confirmed,
+                   track_id=jnp.where(shown_track, tracks.id, -1), track_mask=shown_track,
                    track_misses=tracks.misses, robot=robot)
         return (det_state, tracks), rec
 

@@ -1,0 +1,137 @@
+"""The RGB-D people detector end to end on synthetic clouds (floor, wall, people)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxtrack.perception import hog, rgbd_people
+from jaxtrack.perception.head_subclustering import HeadConfig
+from jaxtrack.perception.voxel_grid import GridSpec
+from tests.perception import _clouds
+
+CFG = rgbd_people.RGBDPeopleConfig(
+    grid=GridSpec(0.06, (0.3, -3.0, -0.3), (80, 100, 45)), voxel_capacity=8192,
+    foreground_capacity=2048)
+EYE = jnp.asarray([0.1, 0.0, 1.1])
+_detect = jax.jit(rgbd_people.detect, static_argnums=0)
+PEOPLE = [((2.0, 0.0), 1.75), ((2.0, 0.45), 1.65), ((3.5, -1.2), 1.85)]   # a touching pair
+
+
+def _cloud(seed=0, people=PEOPLE, angle=0.0, lift=0.0):
+    rng = np.random.default_rng(seed)
+    parts = [_clouds.floor(rng, 6000, x=(0.5, 4.7), y=(-2.5, 2.5)),
+             _clouds.wall(rng, 12000, x=4.8, y=(-2.5, 2.5), height=2.6)]
+    parts += [_clouds.person(rng, c, s) for c, s in people]
+    pts = _clouds.tilt(np.concatenate(parts), angle, lift)
+    rgb = rng.uniform(size=pts.shape)
+    return pts, rgb
+
+
+def _matched(frame, people=PEOPLE, tol=0.12):
+    m = np.asarray(frame.people.mask)
+    pos = np.asarray(frame.people.position)[m][:, :2]
+    hits = [np.linalg.norm(pos - np.asarray(c), axis=1).min() < tol for c, _ in people]
+    return hits, m.sum()
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_finds_each_person_once_including_a_close_pair(dtype):
+    pts, rgb = _cloud()
+    state, frame = _detect(CFG, rgbd_people.init_state(CFG, dtype=dtype), jax.random.key(0),
+                           jnp.asarray(pts, dtype), None, jnp.asarray(rgb, dtype), EYE)
+    hits, n = _matched(frame)
+    assert all(hits) and n == 3
+    assert frame.people.position.dtype == dtype
+    np.testing.assert_allclose(np.sort(np.asarray(frame.people.height)[:3]), [1.65, 1.75, 1.85],
+                               atol=0.05)
+    # The wall and the floor are not people; the ground plane is z = 0.
+    np.testing.assert_allclose(np.asarray(state.plane), [0, 0, 1, 0], atol=0.01)
+    np.testing.assert_allclose(np.asarray(frame.confidence)[:3], 1.0)
+    # The colour histograms are normalised where there is a person.
+    h = np.asarray(frame.histograms)
+    np.testing.assert_allclose(h[np.asarray(frame.people.mask)].sum(1), 1.0, atol=1e-5)
+    assert (h[~np.asarray(frame.people.mask)] == 0).all()
+
+
+def test_without_subclustering_the_pair_is_missed_as_one():
+    cfg = rgbd_people.RGBDPeopleConfig(grid=CFG.grid, voxel_capacity=8192,
+                                       heads=HeadConfig(subcluster=False))
+    pts, rgb = _cloud()
+    _, frame = _detect(cfg, rgbd_people.init_state(cfg), jax.random.key(0), jnp.asarray(pts),
+                       None, jnp.asarray(rgb), EYE)
+    _, n = _matched(frame)
+    assert n == 2
+
+
+def test_ground_plane_follows_a_rocking_camera_from_frame_to_frame():
+    state = rgbd_people.init_state(CFG, dtype=jnp.float64)
+    for k, angle in enumerate(np.linspace(0.0, 0.1, 4)):
+        pts, rgb = _cloud(k, angle=angle, lift=0.02 * k)
+        state, frame = _detect(CFG, state, jax.random.key(k), jnp.asarray(pts), None,
+                               jnp.asarray(rgb), EYE)
+        up = _clouds.tilt(np.eye(3), angle)[2]
+        assert float(np.dot(np.asarray(state.plane)[:3], up)) > np.cos(np.radians(0.5))
+        assert sum(_matched(frame, tol=0.2)[0]) == 3
+
+
+def test_hog_confidence_is_the_svm_on_each_theoretical_box():
+    pts, rgb = _cloud()
+    rot = jnp.asarray([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    camera = hog.PinholeCamera(jnp.asarray([150.0, 150.0]), jnp.asarray([80.0, 60.0]), EYE, rot)
+    image = jax.random.uniform(jax.random.key(1), (120, 160, 3))
+    svm = hog.LinearSVM(jax.random.normal(jax.random.key(2), (hog.num_features(),)) * 0.05,
+                        jnp.asarray(0.1))
+    _, frame = _detect(CFG, rgbd_people.init_state(CFG), jax.random.key(0),
+                       jnp.asarray(pts, jnp.float32), None, jnp.asarray(rgb, jnp.float32), EYE,
+                       image=image, camera=camera, svm=svm)
+    m = np.asarray(frame.people.mask)
+    for k in np.flatnonzero(m):
+        box = frame.boxes[k]
+        want = hog.svm_confidence(svm, hog.hog(hog.crop(image, box)))
+        np.testing.assert_allclose(frame.confidence[k], want, rtol=1e-5)
+        head = frame.people.head[k]
+        foot = head.at[2].set(head[2] - frame.people.height[k])
+        np.testing.assert_allclose(box, hog.person_box(camera, head, foot), atol=0.05)
+    assert (np.asarray(frame.confidence)[~m] == 0).all()
+
+
+def test_empty_and_all_invalid_clouds_give_no_people_and_keep_the_plane():
+    prior = rgbd_people.init_state(CFG)
+    for pts, mask in ((np.zeros((0, 3)), None), (np.full((50, 3), np.nan), None),
+                      (np.zeros((50, 3)), np.zeros(50, bool))):
+        state, frame = rgbd_people.detect(CFG, prior, jax.random.key(0),
+                                          jnp.asarray(pts, jnp.float32),
+                                          None if mask is None else jnp.asarray(mask), None, EYE)
+        assert not bool(frame.people.mask.any())
+        np.testing.assert_allclose(state.plane, prior.plane)
+
+
+def test_vmap_over_episodes_equals_one_by_one():
+    clouds = [_cloud(s)[0] for s in (3, 4)]
+    pts = jnp.asarray(np.stack(clouds), jnp.float32)
+    keys = jax.random.split(jax.random.key(0), 2)
+    state = rgbd_people.init_state(CFG)
+    batched = jax.jit(jax.vmap(lambda k, p: rgbd_people.detect(CFG, state, k, p, None, None,
+                                                               EYE)[1].people.position))(keys, pts)
+    for i in range(2):
+        one = _detect(CFG, state, keys[i], pts[i], None, None, EYE)[1].people.position
+        np.testing.assert_allclose(batched[i], one, atol=1e-5)
+
+
+@pytest.mark.parametrize("kw, match", [(dict(points=np.zeros((5, 2))), "points"),
+                                       (dict(colours=np.zeros((4, 3))), "colours"),
+                                       (dict(viewpoint=np.zeros(2)), "viewpoint"),
+                                       (dict(points=np.zeros((5, 3), np.int32)), "floating")])
+def test_bad_input_is_refused(kw, match):
+    args = dict(points=np.zeros((5, 3)), colours=None, viewpoint=np.zeros(3)) | kw
+    with pytest.raises((ValueError, TypeError), match=match):
+        rgbd_people.detect(CFG, rgbd_people.init_state(CFG), jax.random.key(0), args["points"],
+                           None, args["colours"], args["viewpoint"])
+
+
+@pytest.mark.parametrize("kw", [dict(voxel_capacity=0), dict(cluster_tolerance=-0.1),
+                                dict(merge_distance=float("nan"))])
+def test_bad_config_is_refused(kw):
+    with pytest.raises(ValueError, match="RGBDPeopleConfig"):
+        rgbd_people.RGBDPeopleConfig(**kw)
