@@ -341,8 +341,11 @@ def main(argv: list[str] | None = None) -> int:
             _check_writable(parser, args.out)
         from sims.following.crowd_report import run_rgbd_people
 
-        names = tuple(a.replace("-", " ") for a in (args.ablations or (
-            "full", "no-sub-clustering", "no-velocity", "no-appearance", "no-confidence")))
+        names = tuple({"full": "full", "no-sub-clustering": "no sub-clustering",
+                       "no-velocity": "no velocity", "no-appearance": "no appearance",
+                       "no-confidence": "no confidence"}[a]
+                      for a in (args.ablations or ("full", "no-sub-clustering", "no-velocity",
+                                                   "no-appearance", "no-confidence")))
         run_rgbd_people(args.episodes, args.scenario, args.duration, tuple(args.resolution),
                         names, args.seed, args.out, args.batch_size)
         return 0

@@ -308,7 +308,11 @@ class Tracks(NamedTuple):
 
 class Detections(NamedTuple):
     """One scan: positions [M, 2], mask [M], sensor [M] int32, confidence [M],
-    features [M, F] (F may be 0). Build with `make_detections`."""
+    features [M, F] (F may be 0). Build with `make_detections`.
+
+    A detection without an appearance (a laser person among RGB-D ones) has a row of NaN
+    features: its colour confidence is 1/2 for every track (no evidence) and it never trains a
+    track's classifier, as a positive or as a negative."""
 
     positions: Array
     mask: Array
@@ -658,8 +662,12 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
         d2 = inn.d2
         gated = association.gate(d2, 2, params.gate_prob, live, mask)
     features = detections.features.astype(dtype)
-    conf_app = (appearance.confidence(state.appearance, features) if cfg.num_features
-                else jnp.zeros((K, M), dtype))
+    if cfg.num_features:
+        has = _has_features(features)
+        conf_app = jnp.where(has[None, :], appearance.confidence(
+            state.appearance, jnp.where(has[:, None], features, 0.0)), 0.5)
+    else:
+        conf_app = jnp.zeros((K, M), dtype)
     modes = _predict_modes(state, params) if cfg.motion == "imm" else None
     return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
                       detections.confidence, features, modes, d2)
@@ -865,8 +873,13 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
 
     app = state.appearance
     if cfg.num_features:
-        app = appearance.update(app, hypotheses.features, assoc.col, hypotheses.mask,
-                                live & ~dead, params.appearance_lr)
+        # Detections without features (NaN rows) neither teach a track nor serve as negatives.
+        has = _has_features(hypotheses.features)
+        has_col = jnp.concatenate([has, jnp.zeros(1, bool)])[
+            jnp.where(assoc.col >= 0, assoc.col, has.shape[0])]
+        col = jnp.where(has_col, assoc.col, -1)
+        app = appearance.update(app, jnp.where(has[:, None], hypotheses.features, 0.0), col,
+                                hypotheses.mask & has, live & ~dead, params.appearance_lr)
 
     if cfg.heading == "ar":
         head = jax.vmap(heading_filter.ar_heading_step)(state.heading, mean[:, 2:])
@@ -970,6 +983,11 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
 
 
 # ---------------------------------------------------------------------------------------------
+
+
+def _has_features(features):
+    """[M] rows of finite appearance features (NaN rows: a detection without appearance)."""
+    return jnp.all(jnp.isfinite(features), -1)
 
 
 def _noise(params, dtype):

@@ -275,7 +275,8 @@ def _detections(z: Sensed, config: MultiTargetConfig) -> tracker.Detections:
     lm, km = _sensor_masks(config.sensors, z)
     dtype = z.odom_pose.dtype
     L, K = z.laser_xy.shape[0], z.rgbd_xy.shape[0]
-    feats = jnp.concatenate([jnp.zeros((L, 3), dtype), z.rgbd_colour.astype(dtype)], 0)
+    # Laser people have no colour: NaN rows, which never train a track's colour classifier.
+    feats = jnp.concatenate([jnp.full((L, 3), jnp.nan, dtype), z.rgbd_colour.astype(dtype)], 0)
     return tracker.Detections(
         jnp.concatenate([z.laser_xy, z.rgbd_xy], 0).astype(dtype),
         jnp.concatenate([lm, km], 0),

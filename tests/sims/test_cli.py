@@ -107,3 +107,39 @@ def test_unwritable_out_and_bad_static_points_are_found_first(tmp_path, capsys, 
         cli.main(["track", "--bag", str(bag), "--laser-topic", "/scan", "--static-points",
                   str(points), "--out", str(tmp_path / "o")])
     assert exc.value.code == 2 and "expected 2 columns" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "rgbd-people", "--episodes", "0"], "--episodes and --duration must be positive"),
+    (["run", "rgbd-people", "--duration", "inf"], "--duration finite"),
+    (["run", "rgbd-people", "--resolution", "4", "3"], "--resolution must be at least"),
+    (["run", "rgbd-people", "--batch-size", "0"], "--batch-size must be positive"),
+    (["train-hog", "--out", "x.npz", "--frames", "1"], "--frames must be at least 3"),
+    (["train-hog", "--out", "x.npz", "--c", "-1"], "--c positive"),
+])
+def test_rgbd_people_and_train_hog_refuse_bad_arguments(argv, message, capsys, monkeypatch):
+    import sims.following.crowd_report as crowd_report
+
+    monkeypatch.setattr(crowd_report, "run_rgbd_people",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    monkeypatch.setattr(crowd_report, "train_hog",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_rgbd_people_passes_its_arguments_and_names_the_ablations(monkeypatch, tmp_path):
+    import sims.following.crowd_report as crowd_report
+
+    seen = {}
+    monkeypatch.setattr(crowd_report, "run_rgbd_people", lambda *a, **k: seen.update(args=a))
+    assert cli.main(["run", "rgbd-people", "--episodes", "3", "--scenario", "obstacles",
+                     "--resolution", "320", "240", "--ablations", "full", "no-sub-clustering",
+                     "--out", str(tmp_path)]) == 0
+    episodes, scenario, _, resolution, names = seen["args"][:5]
+    assert (episodes, scenario, resolution) == (3, "obstacles", (320, 240))
+    from sims.following import crowd
+    assert names == ("full", "no sub-clustering") and all(n in crowd.ABLATIONS for n in names)

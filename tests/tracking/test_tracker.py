@@ -439,6 +439,36 @@ def test_gnn_with_seed_001s_position_and_velocity_distance_is_the_brute_force_op
     check_hard_update(assoc, col, mean, cov, det, live)
 
 
+def test_detections_without_features_never_train_the_colour_classifier():
+    """A NaN feature row (a laser person) scores 1/2 for every track, and an update that
+    assigns it changes no classifier, nor serves as a negative for the others."""
+    params = stage_params(num_features=3, alpha=0.7, beta=2.0)
+    state, det = stage_scene(params)
+    feats = np.array(det.features)
+    feats[[0, 3]] = np.nan                                  # detections near tracks 0 and 2
+    with_nan = det._replace(features=jnp.asarray(feats))
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), with_nan, params)
+    np.testing.assert_allclose(np.asarray(hyp.appearance)[:, [0, 3]], 0.5)
+    assoc = tracker.associate_gnn(hyp, params)
+    new = tracker.manage(state, hyp, assoc, params)
+    # Reference: the same update with the featureless detections masked out and unassigned.
+    clean = det._replace(features=jnp.asarray(np.nan_to_num(feats)),
+                         mask=det.mask.at[jnp.asarray([0, 3])].set(False))
+    hyp_ref = tracker.hypothesise(state, tracker.predict(state, params), clean, params)
+    col = np.where(np.isin(np.asarray(assoc.col), [0, 3]), -1, np.asarray(assoc.col))
+    ref = tracker.appearance.update(state.appearance, hyp_ref.features, jnp.asarray(col),
+                                    hyp_ref.mask, np.asarray(new.status) != tracking.FREE,
+                                    params.appearance_lr)
+    k = np.flatnonzero(np.isin(np.asarray(assoc.col), [0, 3]))
+    assert k.size >= 1                                      # some track took a NaN detection
+    np.testing.assert_allclose(np.asarray(new.appearance.weights)[k],
+                               np.asarray(state.appearance.weights)[k])
+    live = np.asarray(new.status) != tracking.FREE
+    np.testing.assert_allclose(np.asarray(new.appearance.weights)[live],
+                               np.asarray(ref.weights)[live], rtol=1e-9)
+    assert np.isfinite(np.asarray(new.appearance.weights)).all()
+
+
 def test_velocity_term_needs_gnn():
     with pytest.raises(ValueError, match="position_velocity"):
         tracking.TrackerConfig(association="jpda", motion_term="position_velocity")
