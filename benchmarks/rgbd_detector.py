@@ -34,38 +34,28 @@ def _frames(width, height, n, seed):
     import jax
     import jax.numpy as jnp
 
-    from jaxtrack.perception import hog
     from sims.following import crowd, kinect
 
     cam = kinect.KinectConfig(width=width, height=height)
     cfg = crowd.CrowdConfig(scenario="obstacles", camera=cam)
-    eye_b, rot_b = kinect.mount_pose(cam)
 
     @jax.jit
     def one(k):
-        kp, kt, kd = jax.random.split(k, 3)
+        kp, kt, ks = jax.random.split(k, 3)
         people = crowd.sample_people(kp, cfg)
         t = jax.random.uniform(kt, (), minval=2.0, maxval=15.0)
         robot = jnp.asarray([-3.8, 0.0, 0.0]).at[0].add(cfg.robot_speed * t)
-        prims = kinect.concat(kinect.people_primitives(crowd.people_at(people, t),
-                                                       people.stature, people.clothing),
-                              crowd.static_scene(cfg))
-        eye, rot = kinect.camera_pose(cam, robot)
-        img = kinect.render(cam, eye, rot, prims)
-        depth, valid = kinect.measure(kd, cam, img.depth)
-        pts, ok, rgb = kinect.point_cloud(cam, depth, valid, eye_b, rot_b, img.colour)
-        return pts, ok, rgb, img.colour
+        z = crowd.sense(ks, cfg, robot, crowd.people_at(people, t), people,
+                        crowd.static_scene(cfg))
+        return z.points, z.points_ok, z.points_rgb, z.colour
 
     out = [one(k) for k in jax.random.split(jax.random.key(seed), n)]
-    fx, fy = cam.focal
-    camera = hog.PinholeCamera(jnp.asarray([fx, fy]), jnp.asarray([width / 2, height / 2]),
-                               eye_b, rot_b)
-    return [jnp.stack([o[i] for o in out]) for i in range(4)], eye_b, camera
+    camera = crowd.base_camera(cfg)
+    return [jnp.stack([o[i] for o in out]) for i in range(4)], camera.position, camera
 
 
 def run(args):
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from jaxtrack.perception import hog, rgbd_people

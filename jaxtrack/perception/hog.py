@@ -106,7 +106,7 @@ def person_box(camera: PinholeCamera, head: Array, foot: Array,
     """The theoretical bounding box (top, left, bottom, right) in pixels, [..., 4], of a person
     whose head top is ``head`` [..., 3] and whose feet are at ``foot`` [..., 3]: from the head
     to the ground plus ``margin``, centred on the head's column, with the window's aspect."""
-    (uh, zh), (uf, zf) = project(camera, head), project(camera, foot)
+    uh, uf = project(camera, head)[0], project(camera, foot)[0]
     top, bottom = uh[..., 1], uf[..., 1]
     height = jnp.maximum(bottom - top, 1.0)
     top = top - config.margin * height

@@ -60,8 +60,9 @@ from sims.following import kinect, layout as layout_mod, pedestrians
 
 Array = jax.Array
 
-__all__ = ["CrowdConfig", "Pipeline", "ABLATIONS", "People", "sample_people", "people_at",
-           "static_scene", "episode", "frames", "training_crops"]
+__all__ = ["CrowdConfig", "Pipeline", "ABLATIONS", "People", "Sensed", "sample_people",
+           "people_at", "static_scene", "sense", "base_camera", "to_world", "episode", "frames",
+           "training_crops"]
 
 SCENARIOS = ("simple", "complex", "obstacles")
 
@@ -284,6 +285,53 @@ def static_scene(cfg: CrowdConfig, dtype=jnp.float32) -> kinect.Primitives:
     return kinect.concat(base, extra)
 
 
+class Sensed(NamedTuple):
+    """One Kinect frame (`sense`): the clean render, the measured depth and its mask, the noisy
+    colour image, the cloud in the robot's base frame, the camera in the world frame."""
+
+    image: kinect.Frame
+    depth: Array
+    valid: Array
+    colour: Array
+    points: Array
+    points_ok: Array
+    points_rgb: Array
+    eye: Array
+    rot: Array
+
+
+def sense(key: Array, cfg: CrowdConfig, robot: Array, crowd: pedestrians.PedestrianState,
+          people: People, scene: kinect.Primitives) -> Sensed:
+    """Render the people and the room from the robot's Kinect, measure the depth, add colour
+    noise and back-project into the robot's base frame."""
+    cam = cfg.camera
+    k_depth, k_rgb = jax.random.split(key)
+    prims = kinect.concat(kinect.people_primitives(crowd, people.stature, people.clothing), scene)
+    eye, rot = kinect.camera_pose(cam, robot)
+    image = kinect.render(cam, eye, rot, prims)
+    depth, valid = kinect.measure(k_depth, cam, image.depth)
+    colour = jnp.clip(image.colour + cfg.colour_noise
+                      * jax.random.normal(k_rgb, image.colour.shape, image.colour.dtype), 0.0, 1.0)
+    eye_b, rot_b = kinect.mount_pose(cam, 0.0, robot.dtype)
+    pts, ok, rgb = kinect.point_cloud(cam, depth, valid, eye_b, rot_b, colour)
+    return Sensed(image, depth, valid, colour, pts, ok, rgb, eye, rot)
+
+
+def base_camera(cfg: CrowdConfig, dtype=jnp.float32) -> hog.PinholeCamera:
+    """The Kinect as a pinhole camera in the robot's base frame (for the HOG boxes)."""
+    cam = cfg.camera
+    eye_b, rot_b = kinect.mount_pose(cam, 0.0, dtype)
+    fx, fy = cam.focal
+    return hog.PinholeCamera(jnp.asarray([fx, fy], dtype),
+                             jnp.asarray([0.5 * cam.width, 0.5 * cam.height], dtype), eye_b, rot_b)
+
+
+def to_world(robot: Array, xy: Array) -> Array:
+    """[N, 2] robot-frame points in the world frame."""
+    c, s = jnp.cos(robot[2]), jnp.sin(robot[2])
+    return jnp.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], -1) + robot[:2]
+
+
 def _person_pixels(cfg, hit, valid, P):
     """[P] pixels with a depth showing each person (`kinect.people_primitives` puts their 6
     capsules first: capsule ``k * P + p`` is person ``p``'s)."""
@@ -325,11 +373,7 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
     params = pipeline.tracker(cfg, dtype)
     det_state = rgbd_people.init_state(dcfg, dtype=dtype)
     tracks = tracking.init(params.config, dtype)
-    eye_b, rot_b = kinect.mount_pose(cam, 0.0, dtype)
-    fx, fy = cam.focal
-    camera = hog.PinholeCamera(jnp.asarray([fx, fy], dtype),
-                               jnp.asarray([0.5 * cam.width, 0.5 * cam.height], dtype),
-                               eye_b, rot_b)
+    camera = base_camera(cfg, dtype)
 
     def frame(carry, inputs):
         det_state, tracks = carry
@@ -338,23 +382,14 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
         # World step.
         robot = jnp.stack([-3.8 + cfg.robot_speed * t, y0, jnp.zeros((), dtype)]).astype(dtype)
         crowd = people_at(people, t)
-        prims = kinect.concat(kinect.people_primitives(crowd, people.stature, people.clothing),
-                              scene)
         # Sense.
-        k_depth, k_rgb, k_det = jax.random.split(k, 3)
-        eye, rot = kinect.camera_pose(cam, robot)
-        image = kinect.render(cam, eye, rot, prims)
-        depth, valid = kinect.measure(k_depth, cam, image.depth)
-        colour = jnp.clip(image.colour + cfg.colour_noise
-                          * jax.random.normal(k_rgb, image.colour.shape, dtype), 0.0, 1.0)
-        pts, ok, rgb = kinect.point_cloud(cam, depth, valid, eye_b, rot_b, colour)
-        det_state, seen = rgbd_people.detect(dcfg, det_state, k_det, pts, ok, rgb, eye_b,
-                                             image=colour, camera=camera, svm=svm)
+        k_sense, k_det = jax.random.split(k)
+        z = sense(k_sense, cfg, robot, crowd, people, scene)
+        det_state, seen = rgbd_people.detect(dcfg, det_state, k_det, z.points, z.points_ok,
+                                             z.points_rgb, camera.position, image=z.colour,
+                                             camera=camera, svm=svm)
         # Estimate (world frame: the robot's odometry is perfect).
-        c, s = jnp.cos(robot[2]), jnp.sin(robot[2])
-        xy = seen.people.position[:, :2]
-        world = jnp.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], -1) \
-            + robot[:2]
+        world = to_world(robot, seen.people.position[:, :2])
         kept = seen.people.mask & (seen.confidence >= (pipeline.min_confidence
                                                         if pipeline.confidence else 0.0))
         dets = tracking.Detections(world, kept,
@@ -363,9 +398,10 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
                                    else jnp.zeros((world.shape[0], 0), dtype))
         tracks = tracking.step(tracks, dets, params)
         # Record.
+        eye, rot = z.eye, z.rot
         rel = crowd.pos - eye[:2]
         along = rel @ rot[:2, 2] / jnp.maximum(jnp.linalg.norm(rot[:2, 2]), 1e-9)
-        shown = _person_pixels(cam, image.hit, valid, P)
+        shown = _person_pixels(cam, z.image.hit, z.valid, P)
         visible = people.mask & (shown >= cfg.min_visible
                                  * _expected_pixels(cam, along, people.stature))
         confirmed = tracks.status == tracking.CONFIRMED
@@ -432,36 +468,24 @@ def training_crops(key: Array, cfg: CrowdConfig, num_frames: int, dtype=jnp.floa
     """
     cam = cfg.camera
     dcfg = Pipeline().detector()
-    fx, fy = cam.focal
-    eye_b, rot_b = kinect.mount_pose(cam, 0.0, dtype)
-    camera = hog.PinholeCamera(jnp.asarray([fx, fy], dtype),
-                               jnp.asarray([0.5 * cam.width, 0.5 * cam.height], dtype),
-                               eye_b, rot_b)
+    camera = base_camera(cfg, dtype)
 
     @jax.jit
     def one(k):
-        kp, kt, kr, kd, kb, kn = jax.random.split(k, 6)
+        kp, kt, kr, kd, kb, ks = jax.random.split(k, 6)
         people = sample_people(kp, cfg, dtype)
         t = jax.random.uniform(kt, (), dtype, 0.0, cfg.duration)
         robot = jnp.stack([-3.8 + cfg.robot_speed * t, jax.random.uniform(kr, (), dtype,
                                                                            -0.5, 0.5), 0.0])
         crowd = people_at(people, t)
-        prims = kinect.concat(kinect.people_primitives(crowd, people.stature, people.clothing),
-                              static_scene(cfg, dtype))
-        eye, rot = kinect.camera_pose(cam, robot.astype(dtype))
-        image = kinect.render(cam, eye, rot, prims)
-        depth, valid = kinect.measure(kd, cam, image.depth)
-        colour = jnp.clip(image.colour + cfg.colour_noise
-                          * jax.random.normal(kn, image.colour.shape, dtype), 0.0, 1.0)
-        pts, ok, rgb = kinect.point_cloud(cam, depth, valid, eye_b, rot_b, colour)
-        _, seen = rgbd_people.detect(dcfg, rgbd_people.init_state(dcfg, dtype=dtype), kd, pts,
-                                     ok, rgb, eye_b, camera=camera)
-        c, s = jnp.cos(robot[2]), jnp.sin(robot[2])
-        xy = seen.people.position[:, :2]
-        world = jnp.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], -1) \
-            + robot[:2]
+        z = sense(ks, cfg, robot.astype(dtype), crowd, people, static_scene(cfg, dtype))
+        _, seen = rgbd_people.detect(dcfg, rgbd_people.init_state(dcfg, dtype=dtype), kd,
+                                     z.points, z.points_ok, z.points_rgb, camera.position,
+                                     camera=camera)
+        world = to_world(robot, seen.people.position[:, :2])
+        eye, rot, colour = z.eye, z.rot, z.colour
         rel = crowd.pos - eye[:2]
-        shown = _person_pixels(cam, image.hit, valid, cfg.max_people)
+        shown = _person_pixels(cam, z.image.hit, z.valid, cfg.max_people)
         along = rel @ rot[:2, 2] / jnp.maximum(jnp.linalg.norm(rot[:2, 2]), 1e-9)
         visible = people.mask & (shown >= cfg.min_visible
                                  * _expected_pixels(cam, along, people.stature))

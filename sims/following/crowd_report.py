@@ -130,29 +130,22 @@ def write_frame_figure(path: Path, cfg: crowd.CrowdConfig, key, svm=None,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cam = cfg.camera
     pipe = crowd.Pipeline()
     dcfg = pipe.detector()
     t = 0.5 * cfg.duration if time_s is None else time_s
-    kp, kr, kd = jax.random.split(key, 3)
+    kp, ks, kd = jax.random.split(key, 3)
     people = crowd.sample_people(kp, cfg)
     robot = jnp.asarray([-3.8 + cfg.robot_speed * t, 0.0, 0.0])
     state = crowd.people_at(people, t)
-    prims = kinect.concat(kinect.people_primitives(state, people.stature, people.clothing),
-                          crowd.static_scene(cfg))
-    eye, rot = kinect.camera_pose(cam, robot)
-    image = kinect.render(cam, eye, rot, prims)
-    depth, valid = kinect.measure(kd, cam, image.depth)
-    eye_b, rot_b = kinect.mount_pose(cam)
-    pts, ok, rgb = kinect.point_cloud(cam, depth, valid, eye_b, rot_b, image.colour)
-    fx, fy = cam.focal
-    camera = hog.PinholeCamera(jnp.asarray([fx, fy]), jnp.asarray([cam.width / 2, cam.height / 2]),
-                               eye_b, rot_b)
-    _, f = rgbd_people.detect(dcfg, rgbd_people.init_state(dcfg), kd, pts, ok, rgb, eye_b,
-                              image=image.colour, camera=camera, svm=svm)
+    z = crowd.sense(ks, cfg, robot, state, people, crowd.static_scene(cfg))
+    camera = crowd.base_camera(cfg)
+    _, f = rgbd_people.detect(dcfg, rgbd_people.init_state(dcfg), kd, z.points, z.points_ok,
+                              z.points_rgb, camera.position, image=z.colour, camera=camera,
+                              svm=svm)
+    depth = z.depth
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     ax = axes[0]
-    ax.imshow(np.asarray(image.colour))
+    ax.imshow(np.asarray(z.colour))
     m = np.asarray(f.people.mask)
     for b, c in zip(np.asarray(f.boxes)[m], np.asarray(f.confidence)[m]):
         top, left, bottom, right = b

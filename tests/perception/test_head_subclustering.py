@@ -1,6 +1,5 @@
 """Head sub-clustering (seed 001 III-B): people standing close are split, one person stays whole."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest

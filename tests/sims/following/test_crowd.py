@@ -107,8 +107,8 @@ def test_ablation_table_pools_episodes_and_pairs_differences():
                 det_misses=np.array([1, 2]))
     worse = dict(full, misses=np.array([3, 6]))
     table = crowd_report.ablation_table({"full": full, "no velocity": worse})
-    assert "86.7%" in table                              # 1 - (3 + 2) / 30
-    assert "73.3%" in table                              # 1 - (9 + 2) / 30
+    assert "83.3%" in table                              # 1 - (3 + 2) / 30
+    assert "63.3%" in table                              # 1 - (9 + 2) / 30
     assert "-20.0" in table                              # mean of (-20, -20) points
 
 
