@@ -62,7 +62,7 @@ Array = jax.Array
 
 __all__ = ["CrowdConfig", "Pipeline", "ABLATIONS", "People", "Sensed", "sample_people",
            "people_at", "static_scene", "sense", "base_camera", "to_world", "episode", "frames",
-           "training_crops"]
+           "score", "training_crops"]
 
 SCENARIOS = ("simple", "complex", "obstacles")
 
@@ -429,7 +429,11 @@ def episode(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM
     Example:
       >>> out = jax.jit(episode, static_argnums=(1, 2))(key, CrowdConfig(), Pipeline(), svm)
     """
-    rec = frames(key, cfg, pipeline, svm, dtype)
+    return score(cfg, frames(key, cfg, pipeline, svm, dtype))
+
+
+def score(cfg: CrowdConfig, rec: dict) -> dict:
+    """An episode's scores (`episode`) from its record (`frames`)."""
     T, P = rec["visible"].shape
     gt_ids = jnp.where(rec["visible"], jnp.arange(P)[None], -1)
     track_mask = _not_ignored(rec, rec["track_pos"], rec["track_mask"], cfg.match_distance)

@@ -86,9 +86,10 @@ def test_hog_confidence_is_the_svm_on_each_theoretical_box():
                        jnp.asarray(pts, jnp.float32), None, jnp.asarray(rgb, jnp.float32), EYE,
                        image=image, camera=camera, svm=svm)
     m = np.asarray(frame.people.mask)
+    score = jax.jit(lambda b: hog.svm_confidence(svm, hog.hog(hog.crop(image, b))))
     for k in np.flatnonzero(m):
         box = frame.boxes[k]
-        want = hog.svm_confidence(svm, hog.hog(hog.crop(image, box)))
+        want = score(box)
         np.testing.assert_allclose(frame.confidence[k], want, rtol=1e-5)
         head = frame.people.head[k]
         foot = head.at[2].set(head[2] - frame.people.height[k])
@@ -98,24 +99,25 @@ def test_hog_confidence_is_the_svm_on_each_theoretical_box():
 
 def test_empty_and_all_invalid_clouds_give_no_people_and_keep_the_plane():
     prior = rgbd_people.init_state(CFG)
-    for pts, mask in ((np.zeros((0, 3)), None), (np.full((50, 3), np.nan), None),
+    for pts, mask in ((np.zeros((0, 3)), np.zeros(0, bool)), (np.full((50, 3), np.nan),
+                                                               np.ones(50, bool)),
                       (np.zeros((50, 3)), np.zeros(50, bool))):
-        state, frame = rgbd_people.detect(CFG, prior, jax.random.key(0),
-                                          jnp.asarray(pts, jnp.float32),
-                                          None if mask is None else jnp.asarray(mask), None, EYE)
+        state, frame = _detect(CFG, prior, jax.random.key(0), jnp.asarray(pts, jnp.float32),
+                               jnp.asarray(mask), None, EYE)
         assert not bool(frame.people.mask.any())
         np.testing.assert_allclose(state.plane, prior.plane)
 
 
 def test_vmap_over_episodes_equals_one_by_one():
-    clouds = [_cloud(s)[0] for s in (3, 4)]
-    pts = jnp.asarray(np.stack(clouds), jnp.float32)
+    clouds = [_cloud(s) for s in (3, 4)]
+    pts = jnp.asarray(np.stack([c[0] for c in clouds]), jnp.float32)
+    rgb = jnp.asarray(np.stack([c[1] for c in clouds]), jnp.float32)
     keys = jax.random.split(jax.random.key(0), 2)
     state = rgbd_people.init_state(CFG)
-    batched = jax.jit(jax.vmap(lambda k, p: rgbd_people.detect(CFG, state, k, p, None, None,
-                                                               EYE)[1].people.position))(keys, pts)
-    for i in range(2):
-        one = _detect(CFG, state, keys[i], pts[i], None, None, EYE)[1].people.position
+    batched = jax.jit(jax.vmap(lambda k, p, c: rgbd_people.detect(
+        CFG, state, k, p, None, c, EYE)[1].people.position))(keys, pts, rgb)
+    for i in range(2):                   # the same compiled call as the float32 test's
+        one = _detect(CFG, state, keys[i], pts[i], None, rgb[i], EYE)[1].people.position
         np.testing.assert_allclose(batched[i], one, atol=1e-5)
 
 

@@ -104,7 +104,7 @@ def test_neighbours_are_exactly_the_centroids_within_the_radius():
     spec = GridSpec(SIZE, (0.0, -2.5, -0.2), (90, 90, 40))
     grid = voxelise(spec, jnp.asarray(pts), capacity=4096)
     for radius in (0.06, 0.12):
-        nb = np.asarray(grid_neighbours(spec, grid, radius))
+        nb = np.asarray(jax.jit(lambda g, r=radius: grid_neighbours(spec, g, r))(grid))
         c = np.asarray(grid.points)
         m = np.asarray(grid.mask)
         d = np.linalg.norm(c[:, None] - c[None], axis=-1)
