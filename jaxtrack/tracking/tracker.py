@@ -114,6 +114,13 @@ class TrackerConfig:
         Only with ``association="gnn"``.
       distance: how the GNN cost weighs it: "squared" (:math:`\gamma d^2`) or "mahalanobis"
         (:math:`\gamma d`, seed 001's eq. 2 writes the distance, not its square).
+      sensor_update: how "jpda" and "nn_jpda" use a scan of several sensors. "joint": one
+        association over all the scan's detections. "sequential": one association and update
+        per sensor, each starting from the previous sensor's posterior
+        (`jaxtrack.association.sequential_jpda_update`; Pao and Frei 1995): a person seen by
+        three sensors yields three detections in one scan, which a joint JPDA, where each track
+        takes at most one detection, must call clutter or other people. Only with
+        ``motion="cv"`` and ``motion_term="position"``.
     """
 
     capacity: int = 16
@@ -132,6 +139,7 @@ class TrackerConfig:
     births_in_gates: bool = False
     motion_term: str = "position"
     distance: str = "squared"
+    sensor_update: str = "joint"
 
     def __post_init__(self):
         _checks.check_options("association", (self.association,), ("gnn", "jpda", "nn_jpda"))
@@ -142,6 +150,11 @@ class TrackerConfig:
         _checks.check_options("motion_term", (self.motion_term,),
                               ("position", "position_velocity"))
         _checks.check_options("distance", (self.distance,), ("squared", "mahalanobis"))
+        _checks.check_options("sensor_update", (self.sensor_update,), ("joint", "sequential"))
+        if self.sensor_update == "sequential" and (self.association == "gnn"
+                                                   or self.motion != "cv"):
+            raise ValueError('sensor_update="sequential" needs association="jpda" or "nn_jpda" '
+                             'and motion="cv"')
         if self.motion_term == "position_velocity" and self.association != "gnn":
             raise ValueError('motion_term="position_velocity" needs association="gnn" (the '
                              'JPDA likelihoods are those of the position)')
@@ -774,6 +787,8 @@ def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association
     _check_stage(params, hypotheses=hypotheses)
     h = hypotheses
     M = h.zs.shape[0]
+    if params.config.sensor_update == "sequential":
+        return _sequential_update(h, params, hard=False)
     beta = _marginals(h, params)
     if h.modes is None:
         posts = association.jpda_update(h.predicted, h.zs, beta, _position(h.zs.dtype), h.R,
@@ -812,8 +827,45 @@ def associate_nn_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Associat
     """
     _check_stage(params, hypotheses=hypotheses)
     h = hypotheses
+    if params.config.sensor_update == "sequential":
+        return _sequential_update(h, params, hard=True)
     col = jnp.where(h.live, association.nn_jpda(_marginals(h, params)), -1)
     return _hard_update(h, col)
+
+
+def _sequential_update(h, params, hard):
+    r"""``sensor_update="sequential"``: `jaxtrack.association.sequential_jpda_update` over the
+    scan's sensors. A track is hit when any sensor's pass gave it a detection
+    (:math:`\beta^s_{k\varnothing} < 1/2`, or an NN-JPDA choice); ``col`` is the first such
+    pass's detection; a detection is used when its own sensor's marginals sum to >= 1/2 over the
+    live tracks (each detection has weight only in its sensor's pass; NN-JPDA: a track chose
+    it)."""
+    M = h.zs.shape[0]
+    out = association.sequential_jpda_update(
+        h.predicted, h.zs, _position(h.zs.dtype), h.R, h.sensor,
+        p_detect=jax.nn.sigmoid(params.logit_p_detect),
+        clutter_density=jnp.exp(params.log_clutter_density), gate_prob=params.gate_prob,
+        meas_mask=h.mask, track_mask=h.live, hard=hard, method=params.config.jpda_method)
+    beta = out.beta                                            # [S, K, M + 1]
+    live = h.live
+    if hard:
+        chosen = out.col_for_row                               # [S, K]
+        hit_s = chosen >= 0
+    else:
+        hit_s = beta[:, :, M] < 0.5
+        best = jnp.argmax(beta[:, :, :M], -1) if M else jnp.full(hit_s.shape, -1)
+        strong = (jnp.max(beta[:, :, :M], -1) > 0.5) if M else jnp.zeros(hit_s.shape, bool)
+        chosen = jnp.where(hit_s & strong, best, -1)
+    hit = live & jnp.any(hit_s, 0)
+    first = jnp.argmax(chosen >= 0, 0)                         # first sensor with a choice
+    col = jnp.where(live, jnp.take_along_axis(chosen, first[None], 0)[0], -1).astype(jnp.int32)
+    mass = jnp.sum(jnp.where(live[None, :, None], beta[:, :, :M], 0.0), (0, 1))
+    taken = jnp.zeros(M, bool).at[jnp.where(live[None] & (chosen >= 0), chosen, M)].set(
+        True, mode="drop")
+    used = taken if hard else (mass >= 0.5) | taken
+    posterior = Gaussian(jnp.where(live[:, None], out.posterior.mean, h.predicted.mean),
+                         jnp.where(live[:, None, None], out.posterior.cov, h.predicted.cov))
+    return Association(posterior, hit, col, used)
 
 
 def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,

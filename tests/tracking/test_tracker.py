@@ -746,3 +746,80 @@ def test_an_empty_frame_equals_an_all_masked_frame_and_zero_scans_change_nothing
 def test_non_finite_parameters_are_refused(bad):
     with pytest.raises(ValueError, match="finite"):
         tracker.TrackerParams.create(tracker.TrackerConfig(), **bad)
+
+
+# ---------------------------------------------------------------------------------------------
+# Several sensors in one scan: the sequential per-sensor update (seed 003).
+
+THREE_STD = (0.1, 0.3, 0.2)
+
+
+def _three_sensor_scan():
+    """Two confirmed tracks 3 m apart, each seen once by each of three sensors."""
+    rng = np.random.default_rng(3)
+    mean = np.array([[0.0, 0.0, 0.5, 0.0], [3.0, 1.0, 0.0, -0.4], [0, 0, 0, 0], [0, 0, 0, 0]])
+    cov = np.stack([np.diag([0.05, 0.06, 0.2, 0.25])] * 4)
+    z = np.concatenate([mean[:2, :2] + 0.05 + s * 0.02 + 0.02 * rng.standard_normal((2, 2))
+                        for s in range(3)])
+    sensor = np.repeat(np.arange(3), 2)
+    return mean, cov, z, sensor
+
+
+@pytest.mark.parametrize("assoc", ["jpda", "nn_jpda"])
+def test_sequential_sensor_update_equals_the_stacked_kalman_update(assoc):
+    """With certain association (P_D ~ 1, negligible clutter, people far apart), updating
+    sensor by sensor is the Kalman update with the three sensors' measurements stacked (block
+    diagonal R): the linear-Gaussian updates commute. A joint JPDA instead lets each track take
+    one of its three detections, so its covariance stays larger."""
+    mean, cov, z, sensor = _three_sensor_scan()
+    out = {}
+    for update in ("sequential", "joint"):
+        cfg = tracking.TrackerConfig(capacity=4, association=assoc, sensor_update=update)
+        params = tracking.TrackerParams.create(cfg, dt=0.1, r_std=THREE_STD, p_detect=0.999,
+                                               clutter_density=1e-6, dtype=jnp.float64)
+        state = tracking.init(cfg, jnp.float64)._replace(
+            mean=jnp.asarray(mean), cov=jnp.asarray(cov),
+            status=jnp.asarray([2, 2, 0, 0], jnp.int32))
+        det = tracking.Detections(jnp.asarray(z), jnp.ones(6, bool), jnp.asarray(sensor, jnp.int32),
+                                  jnp.ones(6), jnp.zeros((6, 0)))
+        pred = tracker.predict(state, params)
+        hyp = tracker.hypothesise(state, pred, det, params)
+        out[update] = (tracker.associate(hyp, params), pred)
+    assoc_seq, pred = out["sequential"]
+    H = np.eye(2, 4)
+    for k in range(2):
+        rows = np.flatnonzero(np.arange(6) % 2 == k)
+        Hs = np.concatenate([H] * 3)
+        Rs = np.diag(np.repeat(np.square(THREE_STD), 2))
+        m, P = np.asarray(pred.mean[k]), np.asarray(pred.cov[k])
+        S = Hs @ P @ Hs.T + Rs
+        K = P @ Hs.T @ np.linalg.inv(S)
+        m_ref = m + K @ (z[rows].reshape(-1) - Hs @ m)
+        P_ref = P - K @ S @ K.T
+        np.testing.assert_allclose(np.asarray(assoc_seq.posterior.mean[k]), m_ref, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(assoc_seq.posterior.cov[k]), P_ref, atol=1e-7)
+        joint_cov = np.asarray(out["joint"][0].posterior.cov[k])
+        assert np.trace(joint_cov[:2, :2]) > 1.2 * np.trace(P_ref[:2, :2])
+    np.testing.assert_array_equal(np.asarray(assoc_seq.hit), [True, True, False, False])
+    np.testing.assert_array_equal(np.asarray(assoc_seq.col), [0, 1, -1, -1])
+    assert np.asarray(assoc_seq.used).all()
+    # the free slots keep their predictions
+    np.testing.assert_array_equal(np.asarray(assoc_seq.posterior.mean[2:]),
+                                  np.asarray(pred.mean[2:]))
+
+
+def test_sequential_sensor_update_runs_a_scan_sequence_and_needs_jpda_with_cv():
+    det, truth = _two_sensor_scenario()
+    cfg = tracking.TrackerConfig(capacity=6, association="nn_jpda", sensor_update="sequential",
+                                 merge_distance=0.4)
+    p = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.05, 0.3), dtype=jnp.float64)
+    _, seq = jax.jit(tracking.run)(tracking.init(cfg, jnp.float64), det, p)
+    confirmed = np.asarray(seq.status) == tracking.CONFIRMED
+    assert confirmed[10:].sum(1).min() == 1 and confirmed[10:].sum(1).max() == 1
+    err = np.linalg.norm(np.asarray(seq.mean)[..., :2] - truth[:, None], axis=-1)
+    assert np.all(err[10:][confirmed[10:]] < 0.15)
+    for bad in (dict(association="gnn"), dict(motion="imm")):
+        with pytest.raises(ValueError, match="sensor_update"):
+            tracking.TrackerConfig(sensor_update="sequential", **bad)
+    with pytest.raises(ValueError, match="sensor_update"):
+        tracking.TrackerConfig(sensor_update="stacked")
