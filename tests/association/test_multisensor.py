@@ -170,3 +170,46 @@ def test_an_empty_scan_leaves_the_tracks_as_predicted():
                                              p_detect=0.9, clutter_density=0.05)
     np.testing.assert_array_equal(out.posterior.mean, tracks.mean)
     np.testing.assert_array_equal(out.posterior.cov, tracks.cov)
+
+
+def joint_kalman_update(mean, cov, zs, R):
+    """One Kalman update with the stacked measurement of all sensors: z = [z_0; ...; z_S-1],
+    H_joint = [H; ...; H], R_joint = blockdiag(R_0, ..., R_S-1) (numpy, float64)."""
+    S = len(zs)
+    H_joint = np.concatenate([H] * S)
+    R_joint = np.zeros((2 * S, 2 * S))
+    for s in range(S):
+        R_joint[2 * s:2 * s + 2, 2 * s:2 * s + 2] = R[s]
+    innovation = np.concatenate(zs) - H_joint @ mean
+    S_joint = H_joint @ cov @ H_joint.T + R_joint
+    gain = np.linalg.solve(S_joint, H_joint @ cov).T
+    post_cov = cov - gain @ S_joint @ gain.T
+    return mean + gain @ innovation, 0.5 * (post_cov + post_cov.T)
+
+
+@pytest.mark.parametrize("hard", [False, True])
+def test_sequential_update_equals_the_joint_stacked_update_for_one_certain_track(hard):
+    """With one track, P_D = 1, no gate (P_G = 1) and exactly one detection per sensor, every
+    pass of the sequential update is a plain Kalman update: the missed-detection weight
+    1 - P_D P_G is 0, so the JPDA marginal of the sensor's detection is 1 whatever the clutter
+    density (and the NN-JPDA choice is that detection), and the combined innovation's spread
+    term vanishes. Sensors with independent noise (block-diagonal R) make the joint likelihood
+    the product of the per-sensor ones, so conditioning on them one after the other (the
+    information-form sum :math:`P^{-1} + \\sum_s H^T R_s^{-1} H`) equals conditioning on the
+    stacked measurement at once: the two agree to rounding in float64, for any sensor order."""
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        mean = rng.uniform(0.0, 3.0, 4)
+        cov = random_spd(rng, 4, 0.3)
+        R = np.stack([random_spd(rng, 2, s**2) for s in (0.1, 0.3, 0.2)])   # seed 003 scales
+        zs = H @ mean + rng.normal(0.0, 0.3, (3, 2))
+        ref_mean, ref_cov = joint_kalman_update(mean, cov, list(zs), R)
+        for order in ([0, 1, 2], [2, 0, 1]):
+            out = association.sequential_jpda_update(
+                Gaussian(mean[None], cov[None]), zs[order], H, R, np.array(order),
+                p_detect=1.0, clutter_density=0.05, gate_prob=1.0, hard=hard)
+            np.testing.assert_allclose(np.asarray(out.beta)[:, 0, -1], 0.0, atol=1e-12)
+            np.testing.assert_allclose(np.asarray(out.posterior.mean[0]), ref_mean,
+                                       rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(np.asarray(out.posterior.cov[0]), ref_cov,
+                                       rtol=1e-9, atol=1e-12)
