@@ -1184,7 +1184,7 @@ def _check(state, det, params):
                            ("features", det.features, (M, cfg.num_features))):
         _checks.check_shape(f"detections.{name}", x, shape)
     if _checks.is_concrete(det.sensor) and M:
-        s = jnp.asarray(det.sensor)
+        s = np.asarray(det.sensor)
         S = jnp.shape(params.log_r_std)[0]
         if int(s.min()) < 0 or int(s.max()) >= S:
             raise ValueError(f"detections.sensor must index the {S} sensors of params.log_r_std")

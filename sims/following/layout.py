@@ -30,7 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Layout", "AisleGraph", "room", "shop", "LAYOUTS", "by_name", "block_segments"]
+__all__ = ["Layout", "AisleGraph", "room", "shop", "LAYOUTS", "by_name", "block_segments",
+           "legged"]
 
 _TABLE = dict(size=(1.2, 0.8), height=0.75, leg_radius=0.04, inset=0.06)
 _CHAIR = dict(size=(0.45, 0.45), height=0.45, leg_radius=0.025, inset=0.03, offset=0.7)
@@ -88,7 +89,9 @@ class Layout:
                          for b in self.blocks], float)
 
 
-def _legged(kind, spec, centre):
+def legged(kind, spec, centre):
+    """A piece of furniture on four legs: ``spec`` has ``size``, ``height``, ``leg_radius`` and
+    ``inset`` (of the legs from the edges); returns the furniture dict (module docstring)."""
     hx, hy = 0.5 * spec["size"][0] - spec["inset"], 0.5 * spec["size"][1] - spec["inset"]
     c = np.asarray(centre, float)
     legs = c + np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
@@ -103,9 +106,9 @@ def room(size=(10.0, 8.0)) -> Layout:
     items = []
     for sx in (-1.0, 1.0):
         centre = np.array([0.25 * W * sx, -0.2 * H * sx])
-        items.append(_legged("table", _TABLE, centre))
+        items.append(legged("table", _TABLE, centre))
         for dy in (-_CHAIR["offset"], _CHAIR["offset"]):
-            items.append(_legged("chair", _CHAIR, centre + np.array([0.0, dy])))
+            items.append(legged("chair", _CHAIR, centre + np.array([0.0, dy])))
     return Layout("room", (float(W), float(H)), tuple(items))
 
 
@@ -136,9 +139,9 @@ def shop() -> Layout:
                                size=(_CAP, _ROW_DEPTH), height=1.2))
     blocks.append(dict(kind="counter", centre=(-5.5, -0.5 * H + 0.375), size=(2.0, 0.45),
                        height=0.9))
-    furniture = (_legged("display", _DISPLAY, (-2.5, 0.5 * H - 0.4)),
-                 _legged("display", _DISPLAY, (2.5, 0.5 * H - 0.4)),
-                 _legged("display", _DISPLAY, (3.5, -0.5 * H + 0.4)))
+    furniture = (legged("display", _DISPLAY, (-2.5, 0.5 * H - 0.4)),
+                 legged("display", _DISPLAY, (2.5, 0.5 * H - 0.4)),
+                 legged("display", _DISPLAY, (3.5, -0.5 * H + 0.4)))
     return Layout("shop", _SHOP, furniture, tuple(blocks), _aisles())
 
 

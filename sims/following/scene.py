@@ -256,7 +256,7 @@ def mjcf(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: floa
 
 def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: float = 0.05,
           contacts: bool = False, gait: GaitParams = GaitParams(), robot_size=(0.5, 0.4, 0.3),
-          robot_radius: float = 0.3, layout: str = "room") -> Scene:
+          robot_radius: float = 0.3, layout: "str | layout_mod.Layout" = "room") -> Scene:
     """Build the scene: MJCF -> ``mujoco.MjModel`` -> ``mjx.Model``, plus the laser geometry.
 
     Args:
@@ -273,14 +273,19 @@ def build(num_people: int = 8, room=(10.0, 8.0), furniture: bool = True, dt: flo
       robot_radius: radius of its collision sphere (m).
       layout: "room" (a ``room``-sized room, with two tables and four chairs when
         ``furniture``) or "shop" (`sims.following.layout.shop`: its own size, shelves, counter
-        and displays; ``room`` and ``furniture`` are ignored).
+        and displays; ``room`` and ``furniture`` are ignored), or a
+        `sims.following.layout.Layout` (its own size, blocks and furniture; e.g. the flat of
+        `sims.service.flat`).
 
     Example:
       >>> scene = build(num_people=4, layout="shop")
     """
-    if layout not in layout_mod.LAYOUTS:
+    if isinstance(layout, layout_mod.Layout):
+        lay = layout
+        room, furniture = lay.room, True
+    elif layout not in layout_mod.LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; choose one of {layout_mod.LAYOUTS}")
-    if layout == "shop":
+    elif layout == "shop":
         lay = layout_mod.shop()
         room, furniture = lay.room, True
     else:
