@@ -1,6 +1,6 @@
 """Command line: ``jaxtrack demo``, ``jaxtrack run humanoid-reach``, ``jaxtrack run
 person-following``, ``jaxtrack run rgbd-people``, ``jaxtrack track``, ``jaxtrack evaluate``,
-``jaxtrack train-legs`` and ``jaxtrack train-hog``.
+``jaxtrack train-legs``, ``jaxtrack train-hog`` and ``jaxtrack run service``.
 
 The console command lives in `sims`, the top layer, so that importing `jaxtrack` never imports
 MuJoCo; only the ``run`` commands and the scene demos import it. ``demo`` (``all``, ``humanoid``
@@ -9,7 +9,8 @@ humanoid-reach`` to `run_humanoid_reach`, ``run person-following`` to
 `sims.following.report.run_person_following`, ``track`` (the sensing step and a user estimator
 replayed on a ROS bag) to `jaxtrack.io.replay.track_bag`, ``evaluate`` (CLEAR MOT of a tracks
 file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`, ``run rgbd-people``
-and ``train-hog`` to `sims.following.crowd_report`.
+and ``train-hog`` to `sims.following.crowd_report`, ``run service`` to
+`sims.service.report.run_service`.
 """
 
 from __future__ import annotations
@@ -123,6 +124,25 @@ def main(argv: list[str] | None = None) -> int:
     rgbd.add_argument("--out", type=Path, default=None,
                       help="directory for the table, the metrics and a figure of one frame")
     rgbd.add_argument("--seed", type=int, default=0)
+    svc = scenes.add_parser("service", help="seeds 002-003: a service robot in a flat among "
+                            "people (ceiling cameras + RGB-D + laser, NN-JPDA, person costmaps "
+                            "and a grid planner; seed 002's approach)")
+    svc.add_argument("--experiment", required=True,
+                     choices=("avoid", "overtake", "tv", "handover", "approach"))
+    svc.add_argument("--episodes", type=int, default=256)
+    svc.add_argument("--duration", type=float, default=60.0, help="seconds per episode")
+    svc.add_argument("--perception", choices=("all", "ceiling", "robot", "truth"),
+                     default="all", help="what the robot's tracker is fed")
+    svc.add_argument("--compare-sensors", action="store_true",
+                     help="also track with the ceiling cameras only and the robot only, and "
+                          "compare their MOTA with all sensors'")
+    svc.add_argument("--interest", default="0.5",
+                     help="approach: the person interest (0-1), or 'estimated'")
+    svc.add_argument("--batch-size", type=int, default=None)
+    svc.add_argument("--animate", action="store_true",
+                     help="with --out, also write an animation of the first episode")
+    svc.add_argument("--out", type=Path, default=None, help="directory for plots and metrics")
+    svc.add_argument("--seed", type=int, default=0)
     th = sub.add_parser("train-hog", help="train the RGB-D detector's HOG + linear SVM person "
                                           "confidence on simulated Kinect crops")
     th.add_argument("--frames", type=int, default=1500, help="simulated frames (all scenarios)")
@@ -328,6 +348,31 @@ def main(argv: list[str] | None = None) -> int:
         from jaxtrack import demo as demo_mod
 
         demo_mod.run(episodes, steps, args.seed)
+        return 0
+    if args.scene == "service":
+        if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
+            parser.error("--episodes and --duration must be positive (and --duration finite)")
+        if args.batch_size is not None and args.batch_size < 1:
+            parser.error(f"--batch-size must be positive; got {args.batch_size}")
+        if args.animate and args.out is None:
+            parser.error("--animate needs --out (the folder the animation is written to)")
+        interest = None
+        if args.interest != "estimated":
+            try:
+                interest = float(args.interest)
+            except ValueError:
+                interest = math.nan
+            if not 0.0 <= interest <= 1.0:
+                parser.error(f"--interest must be a number in [0, 1] or 'estimated'; got "
+                             f"{args.interest!r}")
+        if args.out is not None:
+            _check_writable(parser, args.out)
+        _import_mjx_quietly()
+        from sims.service.report import run_service
+
+        run_service(args.experiment, args.episodes, args.duration, args.perception,
+                    args.compare_sensors, interest, args.out, args.seed, args.batch_size,
+                    args.animate)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

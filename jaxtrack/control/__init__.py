@@ -1,9 +1,11 @@
 """Controllers: pose reaching (seed 000, Algorithm 1), unicycle person following with a follower
-point (seed 004, eq. 9), the person-interest-adapted potential field (seed 002, II-C), a dynamic
-window for obstacles, routes around the static obstacles of a map, and the following behaviour
-that chains them."""
+point (seed 004, eq. 9), the person-interest-adapted potential field and the person-interest
+case base (seed 002, II-B and II-C), a dynamic window for obstacles, routes around the static
+obstacles of a map, the following behaviour that chains them, person costmaps (seed 003, IV) and
+a grid planner with a pure-pursuit path follower."""
 
-from jaxtrack.control import (avoidance, behaviour, follower, pan_tilt, pose, potential_field,
-                              route)
+from jaxtrack.control import (avoidance, behaviour, costmap, follower, grid_planner, pan_tilt,
+                              person_interest, pose, potential_field, route)
 
-__all__ = ["avoidance", "behaviour", "follower", "pan_tilt", "pose", "potential_field", "route"]
+__all__ = ["avoidance", "behaviour", "costmap", "follower", "grid_planner", "pan_tilt",
+           "person_interest", "pose", "potential_field", "route"]

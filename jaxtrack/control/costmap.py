@@ -58,7 +58,10 @@ disc's diameter is the segment -- lethal inside, with a Gaussian fall-off of wid
 
 Two people interact if both are still (not walking), closer than ``pair_distance`` (2 m, ours:
 inside the social zone, where the seed says conversations happen) and each faces the other
-within ``pair_angle`` (60 deg, ours). This gate is a hard decision: gradients flow through the
+within ``pair_angle`` (60 deg, ours). In the map each person gets one zone, with the nearest
+person it interacts with: a conversation pairs people, and N zones instead of N^2 keep the
+map's cost linear in the people (a group of three facing each other gets the zones of each
+one's nearest partner). This gate is a hard decision: gradients flow through the
 zones' geometry, not through whether a zone exists.
 
 *Combination.* `build` takes the cell-wise **maximum** of the static layer, every person's
@@ -440,9 +443,11 @@ def _build(grid, p, people_xy, heading, status, mask, objects, attended, object_
     layers = [cost[None]]
     if n:
         layers.append(jax.vmap(one_person)(xy, head, status, present))
-        upper = jnp.triu(_pairs(xy, head, status, present, pair_distance, pair_angle), 1)
-        layers.append(jax.vmap(jax.vmap(zone, (None, 0, 0)), (0, None, 0))(
-            xy, xy, upper).reshape(n * n, *cost.shape))
+        # one zone per person, with the nearest person it interacts with: N zones, not N^2
+        pairs = _pairs(xy, head, status, present, pair_distance, pair_angle)
+        d2 = jnp.where(pairs, jnp.sum((xy[:, None] - xy[None]) ** 2, -1), jnp.inf)
+        partner = jnp.argmin(d2, 1)
+        layers.append(jax.vmap(zone)(xy, xy[partner], jnp.any(pairs, 1)))
     if n and m:
         k = jnp.clip(attended, 0, m - 1)
         on = present & (attended >= 0) & (attended < m) & object_mask[k]

@@ -68,8 +68,9 @@ behind it. The command is then scaled as a whole into :math:`|v| \le v_{max}`,
 Cells are ``(row, col)`` int32 pairs indexing ``cost[row, col]``; rows run along world
 :math:`y` and columns along :math:`x` (`Grid`, `cell_of`, `centre_of`).
 
-Public API: `Grid`, `cell_of`, `centre_of`, `distance_field`, `Path`, `extract_path`, `plan`,
-`Params`, `lookahead_point`, `track_path`.
+Public API: `Grid`, `cell_of`, `centre_of`, `distance_field`, `refine` (a few rounds from the
+previous frame's field), `Path`, `extract_path`, `plan`, `Params`, `lookahead_point`,
+`track_path`.
 
 Example:
   >>> cost = jnp.zeros((32, 32)).at[10:20, 16].set(jnp.inf)     # a wall
@@ -94,8 +95,8 @@ from jaxtrack import _checks
 
 Array = jax.Array
 
-__all__ = ["Grid", "cell_of", "centre_of", "distance_field", "Path", "extract_path", "plan",
-           "Params", "lookahead_point", "track_path"]
+__all__ = ["Grid", "cell_of", "centre_of", "distance_field", "refine", "Path", "extract_path",
+           "plan", "Params", "lookahead_point", "track_path"]
 
 _STRAIGHT = ((0, 1), (1, 0), (0, -1), (-1, 0))
 _DIAGONAL = ((1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -225,6 +226,70 @@ def distance_field(cost: Array, goal_cell: Array, *, connectivity: int = 8, leth
     _check_cell_index("goal_cell", goal_cell, cost.shape)
     _check_options(connectivity, lethal, cell, method)
     return _field(cost, _as_cell(goal_cell), connectivity, lethal, cell, method)[0]
+
+
+def refine(dist: Array, cost: Array, goal_cell: Array, sweeps: int = 2, *,
+           connectivity: int = 8, lethal=math.inf, cell=1.0) -> Array:
+    r"""``sweeps`` rounds of the Bellman operator from a previous field ``dist``: the distance
+    field of a costmap that changes a little every frame, at a few rounds per frame.
+
+    .. math:: D_g \leftarrow 0, \qquad D_a \leftarrow \min_{b \sim a} w(a, b) + D_b
+        \quad (a \ne g)
+
+    Unlike `distance_field`'s rounds, the new value does not keep the old one when it is lower,
+    so values rise where costs rose (a person stepped onto the path) as well as fall. From any
+    non-negative start the rounds converge to the exact field: after :math:`n` rounds
+    :math:`D_a` is the cheapest of the paths to the goal of at most :math:`n` steps and of
+    :math:`n`-step walks ending at some :math:`b` plus the old :math:`D_b`, and the latter cost
+    at least :math:`n` times the smallest edge weight. A stale value falls at once (one round
+    per cell along the new shortcut) but rises by at least one edge weight per round. A closed
+    loop that replans every frame calls `distance_field` once at its start and `refine` at
+    every frame after, a few rounds each, instead of a full solve (about 100 rounds on a
+    120 x 80 flat) per frame.
+
+    Args:
+      dist: [H, W] the previous field (``inf`` allowed).
+      cost, goal_cell, connectivity, lethal, cell: the graph now (`distance_field`).
+      sweeps: rounds (static, >= 1).
+
+    Returns:
+      [H, W] the refined field (``cost``'s float dtype).
+
+    Example:
+      >>> d = distance_field(cost0, goal, cell=0.1)           # once
+      >>> d = refine(d, cost1, goal, 2, cell=0.1)             # every frame after
+    """
+    _checks.check_ndim("dist", dist, 2, "[H, W] distances")
+    cost = _check_cost("cost", cost)
+    _checks.check_shape("cost", cost, np.shape(dist), "the shape of dist")
+    _check_cell_index("goal_cell", goal_cell, cost.shape)
+    _check_options(connectivity, lethal, cell, "edges")
+    if int(sweeps) != sweeps or sweeps < 1:
+        raise ValueError(f"sweeps must be a positive integer; got {sweeps}")
+    return _refine(jnp.asarray(dist, cost.dtype), cost, jnp.asarray(goal_cell), int(sweeps),
+                   connectivity, lethal, cell)
+
+
+@functools.partial(jax.jit, static_argnames=("sweeps", "connectivity"))
+def _refine(dist, cost, goal, sweeps, connectivity, lethal, cell):
+    H, W = cost.shape
+    passable = _passable(cost, lethal)
+    weights = _edge_weights(cost, passable, connectivity, cell)
+    goal = goal.astype(jnp.int32)
+    inside = jnp.all((goal >= 0) & (goal < jnp.array([H, W])))
+    g = jnp.clip(goal, 0, jnp.array([H - 1, W - 1]))
+    at_goal = jnp.zeros((H, W), bool).at[g[0], g[1]].set(inside)
+    offsets = _offsets(connectivity)
+
+    def one(d, _):
+        best = jnp.full((H, W), jnp.inf, d.dtype)
+        for k, (di, dj) in enumerate(offsets):
+            best = jnp.minimum(best, weights[k] + _shift(d, di, dj, jnp.inf))
+        best = jnp.where(at_goal, 0.0, best)
+        return jnp.where(passable, best, jnp.inf), None
+
+    out, _ = lax.scan(one, jnp.where(passable, dist, jnp.inf), None, length=sweeps)
+    return out
 
 
 def extract_path(dist: Array, start_cell: Array, max_len: int, *, cost: Array,

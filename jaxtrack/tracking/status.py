@@ -20,6 +20,13 @@ standing, walking, seated or hand-over -- which selects the shape of the person'
                       \text{SEATED} & \|v\| \le v_0,\ p \in \text{sitting areas} \\
                       \text{STANDING} & \text{otherwise.} \end{cases}
 
+A new track's velocity is a guess (its prior spread is about 1 m/s), and a still person's
+estimated speed wanders around the threshold, so with the velocity's covariance
+:math:`P_v` (``velocity_cov``) a person walks only when the speed is also *significant*:
+:math:`v^T P_v^{-1} v > \chi^2_2{}^{-1}(\alpha)` (``significance`` :math:`\alpha`, 0.99 by
+default in `from_tracks`): a person sat on the couch is not called walking, and the costmap
+keeps their TV interaction, while their first track estimates settle.
+
 A person walking through an area keeps the walking status (the seed's areas are for still
 people); where a hand-over area overlaps a sitting area, hand-over wins (the robot was sent to
 that person). Areas are oriented boxes (`Areas`), a fixed-size array with a mask.
@@ -144,7 +151,8 @@ def inside(areas: Areas, xy: Array) -> Array:
 
 def classify(position: Array, velocity: Array, previous_heading: Array, mask: Array | None = None,
              *, sitting: Areas | None = None, handover: Areas | None = None,
-             walking_speed=WALKING_SPEED) -> PersonStatus:
+             walking_speed=WALKING_SPEED, velocity_cov: Array | None = None,
+             significance=0.99) -> PersonStatus:
     r"""Status and heading of K tracks (module docstring; seed 003, section III-D).
 
     Pure and batched over tracks; ``vmap`` over episodes by the caller. Tracks with non-finite
@@ -179,18 +187,27 @@ def classify(position: Array, velocity: Array, previous_heading: Array, mask: Ar
     _checks.check_shape("walking_speed", walking_speed, (), "scalar")
     if _checks.is_concrete(walking_speed) and not float(walking_speed) > 0:
         raise ValueError(f"walking_speed must be > 0; got {walking_speed}")
+    if velocity_cov is not None:
+        _checks.check_shape("velocity_cov", velocity_cov, (k, 2, 2), "[K, 2, 2]")
+    _checks.check_probability("significance", significance)
+    if _checks.is_concrete(significance) and not 0 < float(significance) < 1:
+        raise ValueError(f"significance must be in (0, 1); got {significance}")
     position, velocity, previous_heading = (jnp.asarray(x) for x in
                                             (position, velocity, previous_heading))
     dtype = jnp.result_type(position.dtype, velocity.dtype, previous_heading.dtype, jnp.float32)
     mask = jnp.ones(k, bool) if mask is None else jnp.asarray(mask, bool)
+    threshold = None
+    if velocity_cov is not None:
+        velocity_cov = jnp.asarray(velocity_cov, dtype)
+        threshold = -2.0 * jnp.log1p(-jnp.asarray(significance, dtype))   # chi2, 2 dof
     return _classify(position.astype(dtype), velocity.astype(dtype),
                      previous_heading.astype(dtype), mask, sitting, handover,
-                     jnp.asarray(walking_speed, dtype))
+                     jnp.asarray(walking_speed, dtype), velocity_cov, threshold)
 
 
 def from_tracks(tracks: tracker_module.Tracks, *, sitting: Areas | None = None,
                 handover: Areas | None = None, walking_speed=WALKING_SPEED,
-                confirmed_only: bool = False) -> PersonStatus:
+                confirmed_only: bool = False, significance=0.99) -> PersonStatus:
     """`classify` applied to a multi-target tracker's state.
 
     Position and velocity are ``tracks.mean[:, :2]`` and ``[:, 2:]``; the previous heading is
@@ -203,6 +220,7 @@ def from_tracks(tracks: tracker_module.Tracks, *, sitting: Areas | None = None,
       tracks: `jaxtrack.tracking.tracker.Tracks` with K slots.
       sitting, handover, walking_speed: as in `classify`.
       confirmed_only: classify confirmed tracks only.
+      significance: of the speed test with the tracks' velocity covariances (`classify`).
 
     Returns:
       `PersonStatus` [K].
@@ -217,7 +235,8 @@ def from_tracks(tracks: tracker_module.Tracks, *, sitting: Areas | None = None,
     else:
         live = tracks.status != tracker_module.FREE
     return classify(tracks.mean[:, :2], tracks.mean[:, 2:], tracks.heading, live,
-                    sitting=sitting, handover=handover, walking_speed=walking_speed)
+                    sitting=sitting, handover=handover, walking_speed=walking_speed,
+                    velocity_cov=tracks.cov[:, 2:, 2:], significance=significance)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -235,7 +254,8 @@ def _inside(areas, xy):
 
 
 @jax.jit
-def _classify(position, velocity, previous_heading, mask, sitting, handover, walking_speed):
+def _classify(position, velocity, previous_heading, mask, sitting, handover, walking_speed,
+              velocity_cov=None, threshold=None):
     finite = (jnp.all(jnp.isfinite(position), -1) & jnp.all(jnp.isfinite(velocity), -1)
               & jnp.isfinite(previous_heading))
     mask = mask & finite
@@ -245,6 +265,11 @@ def _classify(position, velocity, previous_heading, mask, sitting, handover, wal
     previous_heading = jnp.where(mask, previous_heading, 0.0)
     speed = geometry.safe_norm(velocity)
     walking = mask & (speed > walking_speed)
+    if velocity_cov is not None:
+        cov = jnp.where(mask[:, None, None], velocity_cov, jnp.eye(2, dtype=velocity.dtype))
+        cov = 0.5 * (cov + jnp.swapaxes(cov, -1, -2))
+        d2 = jnp.sum(velocity * jnp.linalg.solve(cov, velocity[..., None])[..., 0], -1)
+        walking = walking & (d2 > threshold)
     safe_v = jnp.where(walking[:, None], velocity, jnp.ones_like(velocity))
     heading = jnp.where(walking, jnp.arctan2(safe_v[:, 1], safe_v[:, 0]), previous_heading)
     still = mask & ~walking

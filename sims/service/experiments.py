@@ -14,9 +14,10 @@ and its task in the flat (`sims.service.flat`):
 - ``handover``: a person walks into the kitchen's hand-over area and waits there; the robot
   comes from the corridor. Task: stop inside their personal zone (0.45-1.2 m), in front of them
   (within 30 deg of their heading), facing them.
-- ``approach`` (seed 002): a person stands in the kitchen, stepping backwards or sideways now
-  and then; the robot starts 2.5-3.5 m away and follows the gradient of the person-interest
-  potential field. Task: the final pose seed 002 gives for the person's interest.
+- ``approach`` (seed 002): a person walks 2 m to a place in the kitchen and stands there,
+  stepping backwards or sideways now and then; the robot starts 2.5-3.5 m from that place and
+  follows the gradient of the person-interest potential field. Task: the final pose seed 002
+  gives for the person's interest.
 
 Capacity: `NUM_PEOPLE` people (unused rows masked).
 """
@@ -127,18 +128,21 @@ def _handover(key, dtype):
 
 def _approach(key, dtype):
     k = jax.random.split(key, 4)
-    person = jnp.array([-2.4, 1.0]) + jax.random.uniform(k[0], (2,), minval=-0.4, maxval=0.4)
+    stop = jnp.array([-2.4, 1.0]) + jax.random.uniform(k[0], (2,), minval=-0.4, maxval=0.4)
     heading = jax.random.uniform(k[1], (), minval=-jnp.pi, maxval=jnp.pi)
-    # the robot starts 2.5-3.5 m away, within 120 deg of the person's heading and in the
-    # kitchen's free floor
+    # they walk 2 m to their place along their final heading (so that the heading can be
+    # estimated from their motion), then stand there
+    start = stop - 2.0 * jnp.array([jnp.cos(heading), jnp.sin(heading)])
+    # the robot starts 2.5-3.5 m from that place, within 120 deg of the heading, in the kitchen
     bearing = heading + jax.random.uniform(k[2], (), minval=-2.1, maxval=2.1)
     r = jax.random.uniform(k[3], (), minval=2.5, maxval=3.5)
-    robot_xy = person + r * jnp.array([jnp.cos(bearing), jnp.sin(bearing)])
-    robot_xy = jnp.clip(robot_xy, jnp.array([-5.5, -0.9]), jnp.array([-0.5, 3.1]))
-    toward = jnp.arctan2(person[1] - robot_xy[1], person[0] - robot_xy[0])
-    rows = dict(pos=person[None], heading=heading[None], role=jnp.array([people_mod.STANDER]),
-                steps=jnp.array([True]))
-    return _setup(rows, jnp.append(robot_xy, toward), person, 0, dtype)
+    lo, hi = jnp.array([-5.5, -0.9]), jnp.array([-0.5, 3.1])
+    robot_xy = jnp.clip(stop + r * jnp.array([jnp.cos(bearing), jnp.sin(bearing)]), lo, hi)
+    start = jnp.clip(start, lo, hi)
+    toward = jnp.arctan2(stop[1] - robot_xy[1], stop[0] - robot_xy[0])
+    rows = dict(pos=start[None], heading=heading[None], role=jnp.array([people_mod.WAITER]),
+                route=stop[None, None], speed=jnp.array([0.5]), steps=jnp.array([True]))
+    return _setup(rows, jnp.append(robot_xy, toward), stop, 0, dtype)
 
 
 _SAMPLERS = dict(avoid=_avoid, overtake=_overtake, tv=_tv, handover=_handover,

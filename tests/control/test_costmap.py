@@ -55,15 +55,18 @@ def ref_build(xy, heading, status, mask, objects=None, attended=None, static=Non
                                                np.asarray(cm.EXTENTS)[status[i]]))
         if mask[i] and attended is not None and attended[i] >= 0:
             cost = np.maximum(cost, ref_zone(cells, xy[i], objects[attended[i]]))
-        for j in range(i + 1, n):
-            if not (mask[i] and mask[j]) or cm.WALKING in (status[i], status[j]):
+        partners = []
+        for j in range(n):
+            if j == i or not (mask[i] and mask[j]) or cm.WALKING in (status[i], status[j]):
                 continue
             d = np.subtract(xy[j], xy[i])
             dist = np.linalg.norm(d)
             ang_i = abs(math.remainder(math.atan2(d[1], d[0]) - heading[i], 2 * math.pi))
             ang_j = abs(math.remainder(math.atan2(-d[1], -d[0]) - heading[j], 2 * math.pi))
             if dist < pair_distance and ang_i <= pair_angle and ang_j <= pair_angle:
-                cost = np.maximum(cost, ref_zone(cells, xy[i], xy[j]))
+                partners.append((dist, j))
+        if partners:            # one zone per person, with its nearest interacting partner
+            cost = np.maximum(cost, ref_zone(cells, xy[i], xy[min(partners)[1]]))
     return cost
 
 

@@ -411,3 +411,33 @@ def test_bad_cells_under_jit_are_impassable():
     # A goal outside the grid under jit reaches nothing.
     out = field_jit(jnp.zeros(SHAPE), jnp.array([99, 0]), lethal=LETHAL, cell=CELL)
     assert np.isinf(np.asarray(out)).all()
+
+
+def test_refine_keeps_the_exact_field_and_converges_to_a_changed_costmap():
+    """The exact field is a fixed point of `refine`; from the field of another costmap (a
+    person moved: costs rose in one place and fell in another) enough rounds give the new
+    field exactly, with values that rose as well as fell; from all-inf nothing is reachable
+    but the goal's neighbourhood grows one cell per round."""
+    cost0, goal = random_costmap(0, np.float64)
+    d0 = reference_field(cost0, goal, 8)
+    d0_jax = run_field(jnp.asarray(cost0), goal)
+    kw = dict(cell=CELL, lethal=LETHAL)
+    np.testing.assert_allclose(np.asarray(gp.refine(d0_jax, jnp.asarray(cost0), goal, 3, **kw)),
+                               d0, rtol=1e-12)
+    cost1 = cost0.copy()
+    rng = np.random.default_rng(1)
+    changed = rng.uniform(size=SHAPE) < 0.3
+    cost1 = np.where(changed & (cost0 < LETHAL), rng.uniform(0.0, 3.0, SHAPE), cost0)
+    d1 = reference_field(cost1, goal, 8)
+    assert np.any(np.isfinite(d1) & (d1 > d0 + 1e-6)) and np.any(d1 < d0 - 1e-6)
+    d = jnp.asarray(d0)
+    for _ in range(40):
+        d = gp.refine(d, jnp.asarray(cost1), goal, 5, **kw)
+    np.testing.assert_allclose(np.asarray(d), d1, rtol=1e-10)
+    assert np.array_equal(np.isinf(np.asarray(d)), np.isinf(d1))
+    one = np.asarray(gp.refine(jnp.full(SHAPE, jnp.inf), jnp.asarray(cost1), goal, 1, **kw))
+    assert one[tuple(goal)] == 0 and np.isfinite(one).sum() <= 9
+    with pytest.raises(ValueError, match="sweeps"):
+        gp.refine(d, jnp.asarray(cost1), goal, 0, **kw)
+    with pytest.raises(ValueError, match="cost"):
+        gp.refine(d, jnp.zeros((3, 3)), goal, 1, **kw)

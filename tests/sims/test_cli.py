@@ -79,6 +79,16 @@ def test_table_labels_a_subset_of_tasks_by_the_names_given():
     (["run", "rgbd-people", "--batch-size", "0"], "--batch-size must be positive"),
     (["train-hog", "--out", "x.npz", "--frames", "1"], "--frames must be at least 3"),
     (["train-hog", "--out", "x.npz", "--c", "-1"], "--c positive"),
+    (["run", "service", "--experiment", "tv", "--episodes", "0"],
+     "--episodes and --duration must be positive"),
+    (["run", "service", "--experiment", "approach", "--interest", "2"],
+     "--interest must be a number in [0, 1]"),
+    (["run", "service", "--experiment", "approach", "--interest", "some"],
+     "--interest must be a number in [0, 1]"),
+    (["run", "service", "--experiment", "tv", "--animate"], "--animate needs --out"),
+    (["run", "service", "--experiment", "tv", "--batch-size", "0"],
+     "--batch-size must be positive"),
+    (["run", "service", "--experiment", "dance"], "invalid choice"),
 ])
 def test_bad_run_arguments_exit_2_with_one_line_before_any_work(argv, message, capsys,
                                                                  monkeypatch):
@@ -93,6 +103,10 @@ def test_bad_run_arguments_exit_2_with_one_line_before_any_work(argv, message, c
     for name in ("run_rgbd_people", "train_hog"):
         monkeypatch.setattr(crowd_report, name,
                             lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    import sims.service.report as service_report
+
+    monkeypatch.setattr(service_report, "run_service",
+                        lambda *a, **k: pytest.fail("ran despite a bad argument"))
     with pytest.raises(SystemExit) as exc:
         cli.main(argv)
     assert exc.value.code == 2

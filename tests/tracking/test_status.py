@@ -151,7 +151,9 @@ def test_from_tracks_classifies_live_tracks_of_the_tracker_state():
     tracks = tracker.init(tracker.TrackerConfig(capacity=4), jnp.float64)
     mean = jnp.array([[2.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.8], [5.0, 5.0, 0.0, 0.0],
                       [-2.0, 0.0, 0.0, 0.0]])
-    tracks = tracks._replace(mean=mean, heading=jnp.array([1.0, 0.0, 0.0, 2.0]),
+    # settled velocity estimates (std 0.05 m/s): significant at 0.8 m/s
+    cov = jnp.tile(jnp.diag(jnp.array([0.01, 0.01, 0.0025, 0.0025])), (4, 1, 1))
+    tracks = tracks._replace(mean=mean, cov=cov, heading=jnp.array([1.0, 0.0, 0.0, 2.0]),
                              status=jnp.array([tracker.CONFIRMED, tracker.CONFIRMED,
                                                tracker.FREE, tracker.TENTATIVE], jnp.int32))
     s = from_tracks(tracks, sitting=COUCH, handover=DOOR)
@@ -185,3 +187,34 @@ def test_bad_input_raises_naming_the_argument():
         st.Areas.create([[0.0, 0.0]], [[1.0, 1.0], [1.0, 1.0]])
     with pytest.raises(TypeError, match="tracks must be a tracker.Tracks"):
         st.from_tracks(z2)
+
+
+def test_an_uncertain_velocity_is_not_walking_until_it_is_significant():
+    """Speed 0.3 m/s with velocity std 1 m/s (a new track) is not walking; with std 0.05 m/s
+    it is; the threshold is the chi-square quantile: d2 = 0.09 / var against -2 log(1 - a)."""
+    v = jnp.array([[0.3, 0.0], [0.3, 0.0], [0.0, 0.3]])
+    cov = jnp.stack([jnp.eye(2), 0.05 ** 2 * jnp.eye(2), 0.05 ** 2 * jnp.eye(2)])
+    s = classify(jnp.zeros((3, 2)), v, jnp.array([0.5, 0.5, 0.5]), velocity_cov=cov)
+    np.testing.assert_array_equal(np.asarray(s.status), [st.STANDING, st.WALKING, st.WALKING])
+    np.testing.assert_allclose(np.asarray(s.heading), [0.5, 0.0, np.pi / 2], atol=1e-6)
+    # at the boundary: var such that d2 = chi2 quantile (9.21 for 0.99) -> just above / below
+    q = -2 * np.log(1 - 0.99)
+    for scale, walks in ((0.99, True), (1.01, False)):
+        var = 0.09 / q * scale
+        s = classify(jnp.zeros((1, 2)), v[:1], jnp.zeros(1),
+                     velocity_cov=var * jnp.eye(2)[None], significance=0.99)
+        assert (int(s.status[0]) == st.WALKING) == walks
+    # without covariances the seed's plain threshold
+    s = classify(jnp.zeros((1, 2)), v[:1], jnp.zeros(1))
+    assert int(s.status[0]) == st.WALKING
+    # from_tracks uses the tracks' own covariances: a fresh track's is wide
+    tracks = tracker.init(tracker.TrackerConfig(capacity=2), jnp.float64)
+    tracks = tracks._replace(mean=jnp.array([[0.0, 0.0, 0.3, 0.0], [1.0, 0.0, 0.3, 0.0]]),
+                             cov=jnp.stack([jnp.eye(4), jnp.diag(jnp.array([1.0, 1, 1e-3, 1e-3]))]),
+                             status=jnp.array([tracker.CONFIRMED] * 2, jnp.int32))
+    np.testing.assert_array_equal(np.asarray(from_tracks(tracks).status),
+                                  [st.STANDING, st.WALKING])
+    with pytest.raises(ValueError, match="significance"):     # checked where concrete
+        st.classify(jnp.zeros((1, 2)), v[:1], jnp.zeros(1), significance=1.0)
+    with pytest.raises(ValueError, match="velocity_cov"):
+        st.classify(jnp.zeros((1, 2)), v[:1], jnp.zeros(1), velocity_cov=jnp.eye(2))

@@ -100,8 +100,15 @@ def test_experiment_starts_are_in_the_free_floor_and_keep_their_promises(name):
         g = np.asarray(s.goal)
         assert ((g[:, 0] > x0) & (g[:, 0] < x1) & (g[:, 1] > y0) & (g[:, 1] < y1)).all()
     elif name == "approach":
-        r = np.linalg.norm(pos[:, 0] - np.asarray(s.robot)[:, :2], axis=-1)
+        r = np.linalg.norm(np.asarray(s.goal) - np.asarray(s.robot)[:, :2], axis=-1)
         assert (r <= 3.5 + 1e-5).all() and np.asarray(s.people.steps)[:, 0].all()
+        # they walk to their place along their heading
+        to_stop = np.asarray(s.goal) - pos[:, 0]
+        h = np.asarray(s.people.heading)[:, 0]
+        unclipped = np.isclose(np.linalg.norm(to_stop, axis=-1), 2.0, atol=1e-4)
+        assert unclipped.mean() > 0.5
+        np.testing.assert_allclose(np.arctan2(to_stop[unclipped, 1], to_stop[unclipped, 0]),
+                                   h[unclipped], atol=1e-4)
     with pytest.raises(ValueError, match="experiment"):
         experiments.sample(jax.random.key(0), "dance")
 

@@ -1,0 +1,668 @@
+r"""One closed-loop episode of the service robot in the flat (seeds 002 and 003).
+
+Each 10 Hz frame is five stages:
+
+1. **world step** (`sims.service.people.step`, then MJX physics for the robot's last command);
+2. **sense**: four ceiling cameras (`jaxtrack.perception.ceiling_camera`, seed 003's 0.1 m),
+   and the robot's laser legs (0.2 m) and RGB-D people (0.3 m) from the person-following scene's
+   sensors (`sims.following.world.observe`, `jaxtrack.perception.sensing.sense`);
+3. **estimate**:
+   - navigation experiments: a KF + NN-JPDA tracker with one update per sensor per scan
+     (`TrackerConfig(sensor_update="sequential")`) over the sensors of ``config.perception``
+     (map frame; the robot is localised in its map), then each track's status and heading
+     (`jaxtrack.tracking.status`: walking above 0.1 m/s, seated in the couch area, hand-over in
+     the hand-over area);
+   - ``approach``: seed 002's 6-state laser + odometry Kalman filter of the person in the robot's
+     odometry frame with the adaptive AR heading filter (`jaxtrack.tracking.user.robot_frame_kf`);
+4. **behave**:
+   - navigation: the person costmap (`jaxtrack.control.costmap.build`: standing, walking,
+     seated, hand-over costs; seated people attend the TV, and the zone between them is lethal;
+     people facing each other interact), inflated by the robot's radius, over the static layer
+     of the flat; the cost-to-go to the goal, solved in full every ``replan_every`` frames
+     (`jaxtrack.control.grid_planner.distance_field`) and refined by a few Bellman rounds from
+     the last frame's at the frames between (`grid_planner.refine`), and the path down it,
+     followed by pure pursuit. In ``handover`` the goal is the point 1 m in
+     front of the tracked person in the hand-over area, and the robot turns to face them there;
+   - ``approach``: gradient following of seed 002's person-interest potential field
+     (`jaxtrack.control.potential_field.approach_velocity`) with PI fixed (``config.interest``)
+     or estimated from the person's motion (`jaxtrack.control.person_interest`);
+5. **record** (world frame): the `Frame`.
+
+Metrics (`summarize`, per episode): success, time to goal, path length, the minimum distance to
+each person and the time inside each of Hall's zones (intimate 0.45 m, personal 1.2 m; distances
+from a person's centre to the robot's body, its 0.3 m disc), and the rule violations:
+``right_pass`` (``overtake``: the robot passed the walking person on their right),
+``tv_crossing`` (the robot's body touched the segment between a seated person and the TV),
+``intimate`` (any frame inside anyone's intimate zone); for ``handover`` and ``approach`` the
+final pose relative to the person. The multi-target tracker's CLEAR MOT and position RMSE are
+scored against every present person.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from jaxtrack import geometry
+from jaxtrack import metrics as jmetrics
+from jaxtrack.angles import wrap
+from jaxtrack.control import costmap, grid_planner, person_interest, potential_field
+from jaxtrack.perception import ceiling_camera, sensing
+from jaxtrack.tracking import status as status_mod
+from jaxtrack.tracking import tracker, user
+from sims.following import scene as scene_mod
+from sims.following import world
+from sims.service import experiments, flat
+from sims.service import people as people_mod
+
+Array = jax.Array
+
+__all__ = ["ServiceConfig", "ServiceParams", "Frame", "PERCEPTION", "make_params",
+           "make_rollout", "make_episode", "summarize", "static_cost", "cameras", "grid",
+           "build_scene", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE"]
+
+PERCEPTION = ("all", "ceiling", "robot", "truth")
+INTIMATE, PERSONAL = costmap.INTIMATE, costmap.PERSONAL
+GOAL_TOLERANCE = 0.25
+MOT_THRESHOLD = 0.5
+_SENSOR_GROUPS = {"all": (0, 1, 2), "ceiling": (0,), "robot": (1, 2)}
+_CEILING, _RGBD, _LASER = 0, 1, 2
+_CAMERA_SLOTS = 4
+_LETHAL_PENALTY = 25.0
+_STATURE, _BODY_RADIUS = 1.7, 0.25
+
+
+def build_scene(num_people: int = experiments.NUM_PEOPLE):
+    """The flat as a `sims.following.scene.Scene` (MJX robot, people as mocap bodies)."""
+    return scene_mod.build(num_people=num_people, layout=flat.flat())
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ServiceConfig:
+    """Static configuration of an episode.
+
+    Attributes:
+      scene: `build_scene()`.
+      experiment: one of `sims.service.experiments.EXPERIMENTS`.
+      perception: "all" (ceiling cameras, RGB-D and laser), "ceiling", "robot" (RGB-D and
+        laser) or "truth" (the true people, for the floor of a metric): what the behaviour's
+        tracker is fed.
+      compare_sensors: also run trackers on the ceiling-only and robot-only detections (for the
+        cooperative-perception comparison; the behaviour still uses ``perception``).
+      interest: ``approach``: seed 002's person interest, fixed in [0, 1], or None to estimate it
+        with the case base.
+      duration: seconds; control_dt: frame period (s).
+      cell: costmap cell (m). replan_every: frames between full solves of the distance field
+        (`jaxtrack.control.grid_planner.distance_field`); sweeps: planner rounds at the frames
+        between (`jaxtrack.control.grid_planner.refine`, from the last frame's field). Rounds
+        lower stale values at once but raise them by about one cell's cost per round, so a
+        field refined after people appeared across the way would lead the robot into them
+        until the next full solve.
+      settle: seconds the robot stands still at the start while its tracks confirm.
+      robot_radius: the body (m). v_max, omega_max: limits.
+      sensors: the robot's `sims.following.world.SensorsConfig`.
+      dtype: float dtype.
+    """
+
+    scene: scene_mod.Scene
+    experiment: str = "avoid"
+    perception: str = "all"
+    compare_sensors: bool = False
+    interest: float | None = 0.5
+    duration: float = 60.0
+    control_dt: float = 0.1
+    cell: float = 0.1
+    sweeps: int = 10
+    replan_every: int = 5
+    settle: float = 1.0
+    robot_radius: float = 0.3
+    v_max: float = 0.8
+    omega_max: float = 1.2
+    sensors: world.SensorsConfig = world.SensorsConfig()
+    dtype: object = jnp.float32
+
+    def __post_init__(self):
+        if self.experiment not in experiments.EXPERIMENTS:
+            raise ValueError(f"unknown experiment {self.experiment!r}; choose one of "
+                             f"{experiments.EXPERIMENTS}")
+        if self.perception not in PERCEPTION:
+            raise ValueError(f"unknown perception {self.perception!r}; choose one of "
+                             f"{PERCEPTION}")
+        if self.interest is not None and not 0.0 <= float(self.interest) <= 1.0:
+            raise ValueError(f"interest must be in [0, 1] or None; got {self.interest}")
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"duration must be > 0; got {self.duration}")
+        if not 0.05 <= self.cell <= 0.5:
+            raise ValueError(f"cell must be in [0.05, 0.5] m; got {self.cell}")
+        if self.replan_every < 1 or self.sweeps < 1:
+            raise ValueError("replan_every and sweeps must be >= 1")
+
+    @property
+    def num_frames(self) -> int:
+        return max(1, int(round(self.duration / self.control_dt)))
+
+
+class ServiceParams(NamedTuple):
+    """Tunable parameters: the costmap's (`costmap.CostParams`), the path follower's
+    (`grid_planner.Params`), the tracker's, the potential field's and the approach gain."""
+
+    cost: costmap.CostParams
+    follow: grid_planner.Params
+    tracker: tracker.TrackerParams
+    field: potential_field.Params
+    estimator: object
+    lookahead: Array
+    approach_gain: Array
+
+
+_TRACKER = tracker.TrackerConfig(capacity=8, association="nn_jpda", sensor_update="sequential",
+                                 merge_distance=0.4, max_misses=10)
+
+
+def make_params(config: ServiceConfig) -> ServiceParams:
+    """Default parameters (seed 003's sensor noise in the tracker)."""
+    dtype = config.dtype
+    est = user.robot_frame_kf(user.RobotFrameKFConfig(sensors="both"))
+    return ServiceParams(
+        costmap.CostParams.create(dtype=dtype),
+        grid_planner.Params.create(k_speed=1.5, k_turn=1.5, v_max=config.v_max,
+                                   omega_max=config.omega_max, dtype=dtype),
+        tracker.TrackerParams.create(_TRACKER, dt=config.control_dt, q=0.5,
+                                     r_std=(0.1, 0.3, 0.2), p_detect=0.8,
+                                     clutter_density=0.02, dtype=dtype),
+        potential_field.Params.create(dtype=dtype),
+        est.params(dt=config.control_dt),
+        jnp.asarray(0.6, dtype), jnp.asarray(1.0, dtype))
+
+
+# ---------------------------------------------------------------------------------------------
+# Static geometry: the grid, the static cost layer, the ceiling cameras
+
+
+def grid(config: ServiceConfig) -> costmap.Grid:
+    """The costmap grid over the whole flat."""
+    W, H = flat.SIZE
+    shape = (int(round(H / config.cell)), int(round(W / config.cell)))
+    return costmap.Grid(jnp.asarray([-0.5 * W, -0.5 * H], config.dtype),
+                        jnp.asarray(config.cell, config.dtype), shape)
+
+
+def static_cost(config: ServiceConfig) -> np.ndarray:
+    """[H, W] the static layer: ``inf`` on walls, blocks and the table; `costmap.LETHAL` where
+    the robot's body would touch them (closer than its radius + 2 cm); then a cost falling from
+    0.3 with 0.15 m scale, to keep the robot off the walls when it can."""
+    g = grid(config)
+    Hc, Wc = g.shape
+    c = config.cell
+    xs = -0.5 * flat.SIZE[0] + (np.arange(Wc) + 0.5) * c
+    ys = -0.5 * flat.SIZE[1] + (np.arange(Hc) + 0.5) * c
+    X, Y = np.meshgrid(xs, ys)
+    occ = np.zeros((Hc, Wc), bool)
+    boxes = [(b["centre"], b["size"]) for b in config.scene.blocks]
+    boxes += [(it["centre"], it["size"]) for it in config.scene.furniture]
+    # a cell is occupied when its square overlaps a box: thin walls stay unbroken
+    for (cx, cy), (sx, sy) in boxes:
+        occ |= (np.abs(X - cx) < 0.5 * (sx + c)) & (np.abs(Y - cy) < 0.5 * (sy + c))
+    border = np.zeros_like(occ)
+    border[0, :] = border[-1, :] = border[:, 0] = border[:, -1] = True
+    d = ndimage.distance_transform_edt(~occ) * c
+    # distance to the outer walls (the flat's edge)
+    d = np.minimum(d, np.minimum.reduce([X + 0.5 * flat.SIZE[0], 0.5 * flat.SIZE[0] - X,
+                                          Y + 0.5 * flat.SIZE[1], 0.5 * flat.SIZE[1] - Y]))
+    r = config.robot_radius + 0.02
+    cost = np.where(d < r, costmap.LETHAL, 0.3 * np.exp(-(d - r) / 0.15))
+    return np.where(occ | (d < 0.5 * c), np.inf, cost)
+
+
+_CAMERA_POSES = (((-5.8, -2.0, 2.5), (-2.0, -2.7, 0.0)),
+                 ((5.8, -2.0, 2.5), (2.0, -2.7, 0.0)),
+                 ((-5.8, 3.8, 2.5), (-2.8, 1.0, 0.0)),
+                 ((0.2, 3.8, 2.5), (3.6, 0.6, 0.0)))
+# each camera reports people in its own room only (the walls hide the others)
+_CAMERA_ROOMS = (flat.CORRIDOR, flat.CORRIDOR, flat.KITCHEN, flat.LIVING_ROOM)
+
+
+def cameras(dtype=jnp.float32) -> ceiling_camera.CeilingCamera:
+    """The four ceiling cameras stacked (two in the corridor, one per room)."""
+    cams = [ceiling_camera.look_at(jnp.asarray(p, dtype), jnp.asarray(t, dtype), fx=300.0,
+                                   width=640, height=480, max_range=9.0, dtype=dtype)
+            for p, t in _CAMERA_POSES]
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *cams)
+
+
+def _in_box(box, xy):
+    x0, y0, x1, y1 = box
+    return (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The episode
+
+
+class State(NamedTuple):
+    data: object
+    people: people_mod.People
+    robot: Array
+    u: Array
+    sensing: object
+    odom: Array
+    tracks: tracker.Tracks
+    extra_tracks: tuple
+    estimator: object
+    interest: Array
+    done: Array
+    dist: Array
+    t: Array
+
+
+class Frame(NamedTuple):
+    """One frame's record (world frame).
+
+    Attributes:
+      robot: [3] true pose. u: [2] the command. done: bool, the task was done by this frame.
+      people: [P, 2]; people_heading: [P]; people_mask: [P]; people_role: [P].
+      hyp_pos: [G, K, 2], hyp_ids: [G, K], hyp_mask: [G, K]: the confirmed tracks of each
+        tracker (G = 1, or 3 with ``compare_sensors``: the behaviour's, ceiling-only,
+        robot-only); for ``approach`` one row holding the person estimate.
+      status: [K] the behaviour tracker's status codes; heading: [K] their headings (the
+        costmap's inputs, with ``hyp_pos[0]``). goal: [2] the current goal.
+      target_est: [3] the estimate of the task's person (x, y, heading), NaN if none.
+      interest: the person interest used (``approach``).
+    """
+
+    robot: Array
+    u: Array
+    done: Array
+    people: Array
+    people_heading: Array
+    people_mask: Array
+    people_role: Array
+    hyp_pos: Array
+    hyp_ids: Array
+    hyp_mask: Array
+    status: Array
+    heading: Array
+    goal: Array
+    target_est: Array
+    interest: Array
+
+
+def _inflate(cost: Array, cells: int) -> Array:
+    """Cell-wise maximum over a disc of ``cells`` cells: the cost to the robot's *centre* of a
+    person cost defined for its body (its configuration space)."""
+    H, W = cost.shape
+    pad = jnp.pad(cost, cells, constant_values=0.0)
+    out = cost
+    for di in range(-cells, cells + 1):
+        for dj in range(-cells, cells + 1):
+            if (di, dj) != (0, 0) and di * di + dj * dj <= cells * cells:
+                out = jnp.maximum(out, pad[cells + di:cells + di + H, cells + dj:cells + dj + W])
+    return out
+
+
+def make_rollout(config: ServiceConfig):
+    """Build ``rollout(key, params) -> Frame`` stacked over the frames.
+
+    Example:
+      >>> cfg = ServiceConfig(build_scene(), experiment="tv", duration=20.0)
+      >>> frames = jax.jit(make_rollout(cfg))(jax.random.key(0), make_params(cfg))
+    """
+    sc = config.scene
+    dtype = config.dtype
+    dt = config.control_dt
+    exp = config.experiment
+    scfg = config.sensors
+    laser = world.laser_world(sc, scfg.laser, dtype)
+    static_map = world.static_map(sc, laser, scfg.map_filter)
+    g = grid(config)
+    pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
+                           jnp.asarray(g.shape, jnp.int32))
+    static = jnp.asarray(static_cost(config), dtype)
+    inflate_cells = int(round(config.robot_radius / config.cell))
+    cams = cameras(dtype)
+    rooms = np.asarray(_CAMERA_ROOMS)
+    sitting = _areas(flat.SITTING_AREAS, dtype)
+    handover = _areas(flat.HANDOVER_AREA[None], dtype)
+    tv = jnp.asarray(flat.TV, dtype)[None]
+    P = sc.num_people
+    approach = exp == "approach"
+    settle_frames = int(round(config.settle / dt))
+    estimator = user.robot_frame_kf(user.RobotFrameKFConfig(sensors="both"))
+    groups = ([config.perception] if config.perception != "truth" else ["all"])
+    if config.compare_sensors:
+        groups = groups + [g_ for g_ in ("ceiling", "robot") if g_ != groups[0]]
+    cases = person_interest.CaseBase.create(dtype=dtype)
+
+    def reset(key, params):
+        k_setup, k_est = jax.random.split(key)
+        setup = experiments.sample(k_setup, exp, dtype)
+        ppl = setup.people
+        pose = setup.robot
+        data = scene_mod.reset(sc, pose, people_mod.as_pedestrians(ppl))
+        tracks = tracker.init(_TRACKER, dtype)
+        prior = user.Prior(ppl.pos[0], pose, jnp.zeros(3, dtype))
+        est = estimator.init(k_est, params.estimator, prior)
+        dist = jnp.zeros(g.shape, dtype)        # the first frame solves in full
+        pi0 = jnp.asarray(0.5 if config.interest is None else config.interest, dtype)
+        return setup, State(data, ppl, pose, jnp.zeros(2, dtype),
+                            sensing.init(scfg.sensing, dtype), pose, tracks,
+                            tuple(tracks for _ in groups[1:]), est, pi0, jnp.asarray(False),
+                            dist, jnp.int32(0))
+
+    def world_step(key, s: State):
+        ppl = people_mod.step(key, s.people, s.robot, dt)
+        data = scene_mod.robot_step(sc, s.data, s.u, max(1, round(dt / sc.dt)))
+        return ppl, data, scene_mod.robot_pose(data).astype(dtype)
+
+    def sense(keys, s: State, ppl, pose):
+        """Detections of every sensor in the map frame ([M, 2], mask, sensor) and the robot's
+        sensing step (odometry frame, for the approach's estimator)."""
+        k_obs, k_cam = keys[:3], keys[3]
+        colours = jnp.zeros((P, 3), dtype)
+        obs = world.observe(k_obs, scfg, sc, laser, s.robot, pose,
+                            people_mod.as_pedestrians(ppl), colours)
+        odom = geometry.compose(s.odom, obs.increment)
+        sensing_state, sensed = sensing.sense(
+            scfg.sensing, s.sensing, obs.ranges, laser.angles,
+            sensing.Odometry(odom, obs.increment), obs.rgbd.xy, obs.rgbd.mask, obs.rgbd.colour,
+            static_map, map_pose=pose, period=dt)
+        heights = jnp.full(P, _STATURE, dtype)
+        radii = jnp.full(P, _BODY_RADIUS, dtype)
+
+        def one_camera(cam, key, room):
+            z, ok = ceiling_camera.detect(cam, key, ppl.pos, heights, radii, ppl.mask,
+                                          capacity=_CAMERA_SLOTS, sigma=0.1, p_detect=0.9,
+                                          clutter_rate=0.05, feet_offset=_BODY_RADIUS,
+                                          upright=True)
+            return z, ok & _in_box(room, z)
+
+        zc, okc = jax.vmap(one_camera)(cams, jax.random.split(k_cam, 4), jnp.asarray(rooms,
+                                                                                       dtype))
+        rgbd_xy = geometry.from_frame(pose, obs.rgbd.xy.astype(dtype))
+        zs = jnp.concatenate([zc.reshape(-1, 2), rgbd_xy, sensed.laser_map_xy.astype(dtype)])
+        ok = jnp.concatenate([okc.reshape(-1), obs.rgbd.mask, sensed.laser_mask])
+        sensor = jnp.concatenate([jnp.full(okc.size, _CEILING), jnp.full(rgbd_xy.shape[0], _RGBD),
+                                  jnp.full(sensed.laser_mask.shape[0], _LASER)]).astype(jnp.int32)
+        return (zs, ok, sensor), sensing_state, sensed, odom
+
+    def track(tracks, dets, group, params):
+        zs, ok, sensor = dets
+        keep = ok & jnp.isin(sensor, jnp.asarray(_SENSOR_GROUPS[group]))
+        det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor,
+                                 jnp.ones(zs.shape[0], dtype), jnp.zeros((zs.shape[0], 0), dtype))
+        return tracker.step(tracks, det, params.tracker)
+
+    def people_estimate(tracks, ppl):
+        """(xy [K, 2], velocity [K, 2], previous heading [K], present [K]) of the behaviour's
+        tracker, or of the true people for ``perception="truth"``."""
+        if config.perception == "truth":
+            K = tracks.mean.shape[0]
+            pad = lambda x: jnp.zeros((K,) + x.shape[1:], x.dtype).at[:P].set(x)  # noqa: E731
+            return (pad(ppl.pos), pad(ppl.vel), pad(ppl.heading),
+                    jnp.zeros(K, bool).at[:P].set(ppl.mask))
+        confirmed = tracks.status == tracker.CONFIRMED
+        return tracks.mean[:, :2], tracks.mean[:, 2:], tracks.heading, confirmed
+
+    def navigate(s: State, pose, tracks, ppl, setup, params, full: bool):
+        xy, vel, prev_heading, present = people_estimate(tracks, ppl)
+        cov = None if config.perception == "truth" else tracks.cov[:, 2:, 2:]
+        st = status_mod.classify(xy, vel, prev_heading, present, sitting=sitting,
+                                 handover=handover, velocity_cov=cov)
+        if config.perception == "truth":
+            # the true roles: a seated person is seated, a waiting one waits
+            role = jnp.zeros(xy.shape[0], jnp.int32).at[:P].set(ppl.role)
+            code = jnp.where(role == people_mod.SEATED, status_mod.SEATED, st.status)
+            st = st._replace(status=code, heading=prev_heading)
+        attended = jnp.where(st.status == status_mod.SEATED, 0, -1).astype(jnp.int32)
+        people_cost = costmap.build(g, params.cost, xy, st.heading, st.status, st.mask,
+                                    objects_xy=tv, attended=attended)
+        cost = jnp.maximum(_inflate(people_cost, inflate_cells), static)
+        # the task's goal
+        if exp == "handover":
+            waiting = st.mask & (st.status == status_mod.HANDOVER)
+            d_goal = jnp.where(waiting, jnp.sum((xy - setup.goal) ** 2, -1), jnp.inf)
+            k = jnp.argmin(d_goal)
+            found = jnp.isfinite(d_goal[k])
+            h = st.heading[k]
+            front = xy[k] + 1.0 * jnp.stack([jnp.cos(h), jnp.sin(h)])
+            goal = jnp.where(found, front, setup.goal + jnp.asarray([0.0, -1.6], dtype))
+            target = jnp.where(found, jnp.append(xy[k], h), jnp.full(3, jnp.nan, dtype))
+            face = xy[k]
+        else:
+            goal, found = setup.goal, jnp.asarray(False)
+            target = jnp.full(3, jnp.nan, dtype)
+            face = goal
+        plan_cost = jnp.where(cost >= costmap.LETHAL, _LETHAL_PENALTY, cost)
+        goal_cell = grid_planner.cell_of(pg, goal)
+        goal_cell = jnp.clip(goal_cell, 0, jnp.asarray(g.shape) - 1)
+        if full:
+            dist = grid_planner.distance_field(plan_cost, goal_cell, cell=config.cell)
+        else:
+            dist = grid_planner.refine(s.dist, plan_cost, goal_cell, config.sweeps,
+                                       cell=config.cell)
+        start = jnp.clip(grid_planner.cell_of(pg, pose[:2]), 0, jnp.asarray(g.shape) - 1)
+        path = grid_planner.extract_path(dist, start, 48, cost=plan_cost, cell=config.cell)
+        aim = grid_planner.lookahead_point(pg, path.cells, path.valid, pose[:2],
+                                           params.lookahead)
+        aim = jnp.where(geometry.safe_norm(goal - pose[:2]) < params.lookahead, goal, aim)
+        u = grid_planner.track_path(pose, aim, params.follow)
+        at_goal = geometry.safe_norm(goal - pose[:2]) < GOAL_TOLERANCE
+        # at the goal: stop, turning toward the person (hand-over) or staying
+        to_face = face - pose[:2]
+        e = wrap(jnp.arctan2(to_face[1], to_face[0]) - pose[2])
+        turn = jnp.clip(1.5 * e, -config.omega_max, config.omega_max)
+        u_goal = jnp.stack([jnp.zeros((), dtype), jnp.where(exp == "handover", turn, 0.0)])
+        u = jnp.where(at_goal, u_goal, u)
+        if exp == "handover":
+            done = at_goal & found & (jnp.abs(e) < math.radians(15.0))
+        else:
+            done = at_goal
+        return u, done, st, goal, target, dist
+
+    def approach_behaviour(s: State, key, sensed, ppl, params):
+        est_state, e = estimator.update(key, s.estimator, sensed, params.estimator)
+        p = e.user
+        heading = e.user_heading
+        if config.interest is None:
+            feats = person_interest.encounter_features(
+                geometry.to_frame(sensed.odom_pose, p[:2]),
+                wrap(heading - sensed.odom_pose[2]),
+                geometry.rotate(-sensed.odom_pose[2], p[2:]))
+            pi = person_interest.interest_step(cases, s.interest, feats)
+        else:
+            pi = s.interest
+        person = jnp.append(p[:2], heading)
+        u = potential_field.approach_velocity(params.field, sensed.odom_pose, person, pi,
+                                              gain=params.approach_gain, v_max=config.v_max,
+                                              omega_max=config.omega_max)
+        return est_state, e, pi, u
+
+    def frame(s: State, key, setup, params, full=False):
+        ks = jax.random.split(key, 7)
+        ppl, data, pose = world_step(ks[0], s)
+        dets, sensing_state, sensed, odom = sense(ks[1:5], s, ppl, pose)
+        K = _TRACKER.capacity
+        if approach:
+            tracks, extra = s.tracks, s.extra_tracks
+            est_state, e, pi, u = approach_behaviour(s, ks[5], sensed, ppl, params)
+            dist = s.dist
+            est_world = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose,
+                                                                     e.user[:2]))
+            target = jnp.append(est_world, wrap(e.user_heading + pose[2]
+                                                - sensed.odom_pose[2]))
+            done = jnp.sqrt(jnp.sum(u ** 2)) < 0.02
+            st = status_mod.PersonStatus(jnp.zeros(K, jnp.int32), jnp.zeros(K, dtype),
+                                         jnp.zeros(K, dtype), jnp.zeros(K, bool))
+            goal = setup.goal
+            hyp_pos = jnp.zeros((1, K, 2), dtype).at[0, 0].set(est_world)
+            hyp_ids = jnp.full((1, K), -1, jnp.int32).at[0, 0].set(0)
+            hyp_mask = jnp.zeros((1, K), bool).at[0, 0].set(True)
+        else:
+            est_state, pi = s.estimator, s.interest
+            tracks = track(s.tracks, dets, groups[0], params)
+            extra = tuple(track(t, dets, gr, params) for t, gr in zip(s.extra_tracks, groups[1:]))
+            u, done, st, goal, target, dist = navigate(s, pose, tracks, ppl, setup, params, full)
+            all_tracks = (tracks,) + extra
+            hyp_pos = jnp.stack([t.mean[:, :2] for t in all_tracks])
+            hyp_ids = jnp.stack([t.id for t in all_tracks])
+            hyp_mask = jnp.stack([t.status == tracker.CONFIRMED for t in all_tracks])
+        done = s.done | done
+        u = jnp.where(done & (exp != "handover") & ~approach, 0.0, u)
+        # the robot looks before it goes: its tracks confirm in the first frames
+        u = jnp.where(s.t < settle_frames, 0.0, u)
+        new = State(data, ppl, pose, u, sensing_state, odom, tracks, extra, est_state, pi, done,
+                    dist, s.t + 1)
+        rec = Frame(pose, u, done, ppl.pos, ppl.heading, ppl.mask, ppl.role, hyp_pos, hyp_ids,
+                    hyp_mask, jnp.where(st.mask, st.status, -1), st.heading, goal, target, pi)
+        return new, rec
+
+    def rollout(key, params: ServiceParams) -> Frame:
+        k_reset, k_run = jax.random.split(key)
+        setup, state = reset(k_reset, params)
+        # blocks of `replan_every` frames: a full solve at the first frame of each, refined
+        # rounds at the others (a static structure: no branch on traced values)
+        n = config.replan_every
+        blocks = -(-config.num_frames // n)
+        keys = jax.random.split(k_run, blocks * n)
+        keys = keys.reshape((blocks, n) + keys.shape[1:])
+
+        def block(s, ks):
+            s, first = frame(s, ks[0], setup, params, full=True)
+            s, rest = jax.lax.scan(lambda s_, k: frame(s_, k, setup, params), s, ks[1:])
+            return s, jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]),
+                                             first, rest)
+
+        _, frames = jax.lax.scan(block, state, keys)
+        return jax.tree_util.tree_map(
+            lambda x: x.reshape((blocks * n,) + x.shape[2:])[:config.num_frames], frames)
+
+    return rollout
+
+
+def _areas(boxes, dtype) -> status_mod.Areas:
+    """`status.Areas` of axis-aligned boxes [A, 4] (x0, y0, x1, y1)."""
+    boxes = np.asarray(boxes, float)
+    return status_mod.Areas.create(0.5 * (boxes[:, :2] + boxes[:, 2:]),
+                                   0.5 * (boxes[:, 2:] - boxes[:, :2]), dtype=dtype)
+
+
+# ---------------------------------------------------------------------------------------------
+# Metrics
+
+
+def _segment_distance(p, a, b):
+    """Distance [...] from points p [..., 2] to the segments a-b [..., 2]."""
+    ab = b - a
+    t = jnp.clip(jnp.sum((p - a) * ab, -1) / jnp.maximum(jnp.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
+    return geometry.safe_norm(p - (a + t[..., None] * ab))
+
+
+def summarize(config: ServiceConfig, f: Frame) -> dict:
+    """Episode metrics (module docstring) from a rollout's `Frame` record (one episode)."""
+    dtype = f.robot.dtype
+    dt = config.control_dt
+    T = f.robot.shape[0]
+    body = geometry.safe_norm(f.people - f.robot[:, None, :2]) - config.robot_radius  # [T, P]
+    body = jnp.where(f.people_mask, body, jnp.inf)
+    done_any = jnp.any(f.done)
+    first = jnp.argmax(f.done)
+    t_goal = jnp.where(done_any, (first + 1) * dt, jnp.nan)
+    step = geometry.safe_norm(f.robot[1:, :2] - f.robot[:-1, :2])
+    before = jnp.arange(1, T) <= first
+    path_length = jnp.sum(jnp.where(before | ~done_any, step, 0.0))
+    present = jnp.any(f.people_mask, 0)
+    min_dist = jnp.where(present, jnp.min(body, 0), jnp.nan)
+    intimate_time = jnp.sum((body < INTIMATE) & f.people_mask, 0) * dt
+    personal_time = jnp.sum((body < PERSONAL) & f.people_mask, 0) * dt
+    intimate = jnp.any((body < INTIMATE) & f.people_mask)
+    # overtaking: where the robot passes the walker (person 0), which side is it on?
+    rel = geometry.rotate(-f.people_heading[:, 0], f.robot[:, :2] - f.people[:, 0])  # [T, 2]
+    ahead = rel[:, 0] > 0
+    passes = ahead[1:] & ~ahead[:-1] & (jnp.abs(rel[1:, 1]) < 2.0)
+    right_pass = jnp.any(passes & (rel[1:, 1] < 0))
+    passed = jnp.any(passes)
+    # TV interaction: the robot's body touching a seated person's segment to the TV
+    seated = f.people_mask & (f.people_role == people_mod.SEATED)
+    tv = jnp.asarray(flat.TV, dtype)
+    d_tv = _segment_distance(f.robot[:, None, :2], f.people, jnp.broadcast_to(tv, f.people.shape))
+    tv_crossing = jnp.any(seated & (d_tv < config.robot_radius))
+    # final pose relative to the task's person (hand-over, approach)
+    final = f.robot[-1]
+    person = f.people[-1, 0]
+    ph = f.people_heading[-1, 0]
+    rel_final = geometry.rotate(-ph, final[:2] - person)
+    final_distance = geometry.safe_norm(final[:2] - person)
+    final_angle = jnp.arctan2(rel_final[1], rel_final[0])
+    facing = wrap(jnp.arctan2(person[1] - final[1], person[0] - final[0]) - final[2])
+    exp = config.experiment
+    if exp == "avoid":
+        rule = ~intimate
+    elif exp == "overtake":
+        rule = passed & ~right_pass
+    elif exp == "tv":
+        rule = ~tv_crossing
+    elif exp == "handover":
+        edge = final_distance - config.robot_radius
+        rule = ((edge > INTIMATE) & (edge < PERSONAL) & (jnp.abs(final_angle) < math.radians(30))
+                & (jnp.abs(facing) < math.radians(30)))
+    else:
+        rule = jnp.asarray(True)
+    if exp == "approach":
+        # seed 002's pose for the interest, reached (time to goal) and held at the end
+        rel_t = geometry.rotate(-f.people_heading[:, 0], f.robot[:, :2] - f.people[:, 0])
+        ok_t = _approach_ok(config.interest, geometry.safe_norm(rel_t),
+                            jnp.arctan2(rel_t[:, 1], rel_t[:, 0]))
+        ok_t = jnp.broadcast_to(ok_t, (T,))
+        t_goal = jnp.where(jnp.any(ok_t), (jnp.argmax(ok_t) + 1) * dt, jnp.nan)
+        path_length = jnp.sum(step)
+        success = ok_t[-1]
+        rule = success
+    else:
+        success = done_any & rule
+    G = f.hyp_pos.shape[1]
+    P = f.people.shape[1]
+    gt_ids = jnp.broadcast_to(jnp.arange(P, dtype=jnp.int32), (T, P))
+    mot = {}
+    for gi in range(G):
+        ids = jnp.where(f.hyp_mask[:, gi], f.hyp_ids[:, gi], -1)
+        m = jmetrics.clear_mot(gt_ids, f.people, f.people_mask, ids, f.hyp_pos[:, gi],
+                               f.hyp_mask[:, gi], MOT_THRESHOLD, num_ids=P)
+        mot[gi] = m
+    out = dict(success=success, rule=rule, time_to_goal=t_goal, path_length=path_length,
+               min_distance=min_dist, intimate_time=intimate_time, personal_time=personal_time,
+               intimate=intimate, right_pass=right_pass, passed=passed, tv_crossing=tv_crossing,
+               final_distance=final_distance, final_angle=final_angle, facing=facing,
+               mota=mot[0].mota, motp=mot[0].motp, interest=f.interest[-1])
+    if G > 1:
+        out.update(mota_ceiling=mot[1].mota, mota_robot=mot[2].mota, motp_ceiling=mot[1].motp,
+                   motp_robot=mot[2].motp)
+    return out
+
+
+APPROACH_TARGETS = {0.0: (2.0, 0.0), 0.5: (1.3, math.radians(45.0)), 1.0: (0.45, 0.0)}
+
+
+def _approach_ok(interest, distance, angle):
+    """Seed 002's final poses: PI = 0 about 2 m in front, 0.5 about 45 deg off the heading just
+    outside 1.2 m, 1 about 0.45 m in front (tolerances: 0.35 m and 20 deg)."""
+    if interest is None:
+        return jnp.asarray(True)
+    key = min(APPROACH_TARGETS, key=lambda k: abs(k - float(interest)))
+    r, a = APPROACH_TARGETS[key]
+    return (jnp.abs(distance - r) < 0.35) & (jnp.abs(jnp.abs(angle) - a) < math.radians(20))
+
+
+def make_episode(config: ServiceConfig):
+    """``episode(key, params) -> metrics`` for `jaxtrack.montecarlo.evaluate`."""
+    rollout = make_rollout(config)
+
+    def episode(key, params):
+        return summarize(config, rollout(key, params))
+
+    return episode

@@ -1,0 +1,153 @@
+"""The service scene's closed loop at a small size: one compiled rollout of the TV experiment
+with all three trackers (the behaviour's and the single-sensor-group ones), the metrics' rules
+on hand-made trajectories, the static layer, the ceiling cameras' coverage, and bad
+configurations."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxtrack.perception import ceiling_camera
+from jaxtrack.tracking import status as status_mod
+from sims.service import episode as ep
+from sims.service import experiments, flat
+from sims.service import people as pm
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return ep.build_scene()
+
+
+@pytest.fixture(scope="module")
+def tv_run(scene):
+    cfg = ep.ServiceConfig(scene, experiment="tv", duration=24.0, compare_sensors=True)
+    params = ep.make_params(cfg)
+    roll = jax.jit(jax.vmap(ep.make_rollout(cfg), (0, None)))
+    frames = roll(jax.random.split(jax.random.key(3), 2), params)
+    metrics = jax.vmap(lambda f: ep.summarize(cfg, f))(frames)
+    return cfg, jax.tree_util.tree_map(np.asarray, frames), \
+        {k: np.asarray(v) for k, v in metrics.items()}
+
+
+def test_the_robot_goes_around_the_couch_without_crossing_the_tv_interaction(tv_run):
+    cfg, f, m = tv_run
+    T = cfg.num_frames
+    assert f.robot.shape == (2, T, 3) and f.hyp_pos.shape[:3] == (2, T, 3)
+    assert m["success"].all() and not m["tv_crossing"].any()
+    # the way around: behind the couch (x < its back, 1.95 m) at some frame
+    assert (f.robot[..., 0].min(1) < 1.95).all()
+    # the path is longer than the straight line it was not allowed to take
+    straight = np.linalg.norm(f.goal[:, -1] - f.robot[:, 0, :2], axis=-1)
+    assert (m["path_length"] > straight + 1.0).all()
+    assert np.isfinite(m["time_to_goal"]).all() and (m["time_to_goal"] <= 24.0).all()
+
+
+def test_seated_people_are_tracked_and_called_seated(tv_run):
+    cfg, f, m = tv_run
+    late = slice(50, None)                                     # after 5 s
+    for e in range(2):
+        seated = f.people_mask[e, 0] & (f.people_role[e, 0] == pm.SEATED)
+        for p in np.flatnonzero(seated):
+            d = np.linalg.norm(f.hyp_pos[e, late, 0] - f.people[e, late, p][:, None], axis=-1)
+            near = f.hyp_mask[e, late, 0] & (d < 0.5)
+            assert near.any(1).mean() > 0.9                    # tracked
+            codes = np.where(near, f.status[e, late], -1)
+            assert (codes == status_mod.SEATED).any(1).mean() > 0.9
+    # cooperative perception: all sensors at least as good as the robot alone here, where the
+    # robot sees the couch only part of the time
+    assert (m["mota"] >= m["mota_robot"] - 1e-6).all()
+    assert (m["mota"] > 0.8).all()
+
+
+def _frame(robot, people, heading, role, mask=None):
+    """A hand-made `Frame` record: robot [T, 3], people [T, P, 2]."""
+    T, P = people.shape[:2]
+    K = 2
+    mask = np.ones((T, P), bool) if mask is None else mask
+    z = np.zeros
+    return ep.Frame(jnp.asarray(robot, jnp.float32), jnp.zeros((T, 2)), jnp.zeros(T, bool),
+                    jnp.asarray(people, jnp.float32), jnp.asarray(heading, jnp.float32),
+                    jnp.asarray(mask), jnp.asarray(role, jnp.int32),
+                    jnp.asarray(z((T, 1, K, 2)), jnp.float32), jnp.full((T, 1, K), -1),
+                    jnp.zeros((T, 1, K), bool), jnp.full((T, K), -1), jnp.zeros((T, K)),
+                    jnp.zeros((T, 2)), jnp.zeros((T, 3)), jnp.zeros(T))
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_overtaking_side_is_scored_from_the_walkers_frame(scene, side):
+    T = 60
+    t = np.arange(T) * 0.1
+    person = np.stack([0.5 * t, np.zeros(T)], -1)[:, None]          # walks along +x
+    robot = np.stack([-1.0 + 1.0 * t, side * 0.9 * np.ones(T), np.zeros(T)], -1)
+    cfg = ep.ServiceConfig(scene, experiment="overtake")
+    m = ep.summarize(cfg, _frame(robot, person, np.zeros((T, 1)), np.zeros((T, 1))))
+    assert bool(m["passed"])
+    assert bool(m["right_pass"]) == (side < 0) and bool(m["rule"]) == (side > 0)
+    np.testing.assert_allclose(float(m["min_distance"][0]), 0.9 - cfg.robot_radius, atol=1e-5)
+
+
+def test_tv_crossing_and_intimate_intrusion_are_detected(scene):
+    T = 40
+    seat = flat.SEATS[1]
+    person = np.tile(seat, (T, 1))[:, None]
+    y = np.linspace(-0.5, 3.0, T)
+    cfg = ep.ServiceConfig(scene, experiment="tv")
+    through = np.stack([np.full(T, 4.3), y, np.zeros(T)], -1)        # between seat and TV
+    behind = np.stack([np.full(T, 1.0), y, np.zeros(T)], -1)
+    role = np.full((T, 1), pm.SEATED)
+    m_through = ep.summarize(cfg, _frame(through, person, np.zeros((T, 1)), role))
+    m_behind = ep.summarize(cfg, _frame(behind, person, np.zeros((T, 1)), role))
+    assert bool(m_through["tv_crossing"]) and not bool(m_through["rule"])
+    assert not bool(m_behind["tv_crossing"]) and bool(m_behind["rule"])
+    # the intimate zone: the body (0.3 m disc) within 0.45 m of the centre
+    close = np.stack([np.full(T, seat[0] - 0.7), np.full(T, seat[1]), np.zeros(T)], -1)
+    m_close = ep.summarize(ep.ServiceConfig(scene, experiment="avoid"),
+                           _frame(close, person, np.zeros((T, 1)), np.full((T, 1), pm.STANDER)))
+    assert bool(m_close["intimate"]) and not bool(m_close["rule"])
+    np.testing.assert_allclose(float(m_close["intimate_time"][0]), T * 0.1, rtol=1e-5)
+
+
+def test_static_layer_blocks_walls_and_keeps_doors_and_corridor_free(scene):
+    cfg = ep.ServiceConfig(scene)
+    c = ep.static_cost(cfg)
+    g = ep.grid(cfg)
+    assert c.shape == g.shape == (80, 120)
+
+    def at(x, y):
+        i = int((y + 4.0) / cfg.cell)
+        j = int((x + 6.0) / cfg.cell)
+        return c[i, j]
+
+    assert np.isinf(at(1.0, -1.4)) and np.isinf(at(0.0, 0.0)) and np.isinf(at(2.4, 1.3))
+    assert at(0.0, -2.7) == pytest.approx(0.0, abs=0.01)          # corridor middle
+    assert at(3.0, -1.4) < 1.0 and at(-3.0, -1.4) < 1.0 and at(0.0, 1.6) < 1.0   # doors
+    assert at(-5.85, 0.0) >= 1.0                                    # too near the outer wall
+
+
+def test_each_room_is_covered_by_a_ceiling_camera():
+    cams = ep.cameras()
+    rooms = experiments.free_floor()
+    rng = np.random.default_rng(0)
+    for room in rooms:
+        x0, y0, x1, y1 = room
+        pts = np.stack([rng.uniform(x0 + 0.4, x1 - 0.4, 200),
+                        rng.uniform(y0 + 0.4, y1 - 0.4, 200)], -1)
+        seen = np.zeros(200, bool)
+        for c in range(4):
+            cam = jax.tree_util.tree_map(lambda x: x[c], cams)
+            seen |= np.asarray(ceiling_camera.in_footprint(cam, jnp.asarray(pts, jnp.float32)))
+        assert seen.mean() > 0.9, room
+
+
+def test_bad_configurations_are_refused(scene):
+    for kw, match in ((dict(experiment="dance"), "experiment"),
+                      (dict(perception="radar"), "perception"),
+                      (dict(interest=1.5), "interest"),
+                      (dict(duration=math.nan), "duration"),
+                      (dict(cell=0.01), "cell")):
+        with pytest.raises(ValueError, match=match):
+            ep.ServiceConfig(scene, **kw)
