@@ -481,10 +481,15 @@ class RobotFrameKFConfig:
       sensors: "both", "laser" or "rgbd".
       init_std: std of the initial state ``(position m, person velocity m/s, robot velocity
         m/s)``.
+      heading: `jaxtrack.filters.heading.HeadingParams` of the AR heading filter (seed 002's
+        eq. 13 by default). Its ``slow`` = 0.9 still blends 10 % of the velocity's direction
+        into the heading at every frame below 0.1 m/s, where the direction of an estimated
+        velocity is noise: a still person's heading wanders. ``slow=1.0`` holds it.
     """
 
     sensors: str = "both"
     init_std: tuple = (0.2, 0.5, 0.1)
+    heading: heading_filter.HeadingParams = heading_filter.HeadingParams()
 
     def __post_init__(self):
         _check_sensors(self.sensors)
@@ -570,7 +575,12 @@ def robot_frame_kf(config: RobotFrameKFConfig = RobotFrameKFConfig()) -> Estimat
         R = jnp.diag(jnp.stack([r**2, r**2, ro**2, ro**2])).astype(dtype)
         zmask = jnp.stack([found, found, True, True])
         g, _ = kalman.update(g, zv, H, R, zmask)
-        head = heading_filter.ar_heading_step(state.heading, g.mean[2:4])
+        # The heading is kept in the robot frame, like the state: the robot's turn by
+        # psi T since the last frame turns a still person's heading by -psi T there (the
+        # rotation term of eqs. 10-11 applied to the pose), before eq. 12 blends in the
+        # velocity's direction.
+        turned = wrap(state.heading - z.odom_rate * params.dt)
+        head = heading_filter.ar_heading_step(turned, g.mean[2:4], config.heading)
         user_xy = geometry.from_frame(z.odom_pose, g.mean[:2])
         user_v = geometry.rotate(z.odom_pose[2], g.mean[2:4])
         user = jnp.concatenate([user_xy, user_v])

@@ -399,3 +399,36 @@ def test_the_user_estimator_learns_the_users_colour_from_their_track(max_looks):
     else:
         assert float(final.reid.looks) >= 6
         assert np.linalg.norm(learnt - true) < 0.05 < np.linalg.norm(shown - true)
+
+
+def test_robot_frame_kf_keeps_a_still_persons_heading_while_the_robot_turns():
+    """A person walks along +y (world) for 2 s, then stands; the robot turns in place at
+    0.4 rad/s all along. The filter's heading lives in the robot frame and is turned with the
+    robot's odometry rate; with the heading held below 0.1 m/s (``slow=1``) the reported
+    (odometry frame) heading stays near +y while the person stands instead of turning with the
+    robot (1.6 rad in those 4 s). Seed 002's own ``slow=0.9`` lets it wander."""
+    n = 60
+    t = np.arange(n) * DT
+    person = np.stack([2.0 * np.ones(n), -1.0 + 0.6 * np.minimum(t, 2.0)], -1)
+    rng = np.random.default_rng(0)
+    noise = 0.02 * rng.normal(size=(n, 2))
+    errors = {}
+    for slow in (1.0, 0.9):
+        est = user.robot_frame_kf(user.RobotFrameKFConfig(
+            heading=user.heading_filter.HeadingParams(slow=slow)))
+        params = est.params(dt=DT, dtype=jnp.float64)
+        state = est.init(jax.random.key(0), params, user.Prior(jnp.asarray(person[0]),
+                                                               jnp.zeros(3), jnp.zeros(3)))
+        update = jax.jit(est.update)
+        headings = []
+        for k in range(n):
+            pose = jnp.array([0.0, 0.0, 0.4 * t[k]])
+            sensed = _sensed(jnp.asarray((person[k] + noise[k])[None]), jnp.ones(1, bool),
+                             jnp.zeros((1, 2)), jnp.zeros(1, bool), jnp.zeros((1, 3)), pose,
+                             0.0, 0.4)
+            state, e = update(jax.random.key(k), state, sensed, params)
+            headings.append(float(e.user_heading))
+        errors[slow] = np.abs(np.angle(np.exp(1j * (np.array(headings) - np.pi / 2))))
+    assert errors[1.0][15:25].max() < 0.35          # walking: the velocity's direction
+    assert errors[1.0][30:].max() < 0.35            # standing, the robot turning: held
+    assert errors[0.9][30:].max() > 1.0             # the seed's 0.9 wanders
