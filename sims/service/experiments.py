@@ -7,8 +7,9 @@ and its task in the flat (`sims.service.flat`):
   three people stand in the corridor at random places and headings, spaced so that a way past
   them outside their intimate zones exists. Rule: never inside anyone's intimate zone.
 - ``overtake``: the robot crosses the corridor the same way; a person walks ahead of it, in the
-  same direction, at 0.35-0.5 m/s, starting 1.2-1.6 m ahead, and turns into the living room at
-  its door. Rule: pass them on their left.
+  same direction, keeping to the right of the corridor (0.1-0.35 m right of its centre line), at
+  0.35-0.5 m/s, starting 1.2-1.6 m ahead, and turns into the living room at its door. Rule:
+  pass them on their left.
 - ``tv``: the robot crosses the living room from below the couch-TV axis to above it; one to
   three people sit on the couch watching the TV. Rule: never cross a person-TV interaction.
 - ``handover``: a person walks into the kitchen's hand-over area and waits there; the robot
@@ -90,7 +91,9 @@ def _avoid(key, dtype):
 
 def _overtake(key, dtype):
     k = jax.random.split(key, 4)
-    y = CORRIDOR_Y + jax.random.uniform(k[0], (), minval=-0.2, maxval=0.2)
+    # they keep to the right of the corridor (its lower half, walking along +x), as walkers
+    # do: a 0.6 m robot passing on their left then keeps out of their intimate zone
+    y = CORRIDOR_Y + jax.random.uniform(k[0], (), minval=-0.35, maxval=-0.1)
     x0 = -5.2 + jax.random.uniform(k[1], (), minval=1.2, maxval=1.6)
     speed = jax.random.uniform(k[2], (), minval=0.35, maxval=0.5)
     # along the corridor, then up through the living room's door
