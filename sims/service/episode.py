@@ -110,7 +110,10 @@ class ServiceConfig:
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
-      robot_radius: the body (m). v_max, omega_max: limits.
+      robot_radius: the body (m). safety_margin: people's costs are inflated by the body
+        plus this (m): the grid's cells, the tracks' errors (about 0.08 m) and pure pursuit's
+        cut corners would otherwise put the body a few centimetres inside a lethal core.
+        v_max, omega_max: limits.
       sensors: the robot's `sims.following.world.SensorsConfig`.
       dtype: float dtype.
     """
@@ -128,6 +131,7 @@ class ServiceConfig:
     settle: float = 1.0
     heading_slow: float = 1.0
     robot_radius: float = 0.3
+    safety_margin: float = 0.1
     v_max: float = 0.8
     omega_max: float = 1.2
     sensors: world.SensorsConfig = world.SensorsConfig()
@@ -168,7 +172,7 @@ class ServiceParams(NamedTuple):
 
 
 _TRACKER = tracker.TrackerConfig(capacity=8, association="nn_jpda", sensor_update="sequential",
-                                 merge_distance=0.6, max_misses=10)
+                                 merge_distance=0.4, max_misses=10)
 
 
 def _kf_config(config: ServiceConfig) -> user.RobotFrameKFConfig:
@@ -342,7 +346,7 @@ def make_rollout(config: ServiceConfig):
     pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
                            jnp.asarray(g.shape, jnp.int32))
     static = jnp.asarray(static_cost(config), dtype)
-    inflate_cells = int(round(config.robot_radius / config.cell))
+    inflate_cells = int(round((config.robot_radius + config.safety_margin) / config.cell))
     cams = cameras(dtype)
     rooms = np.asarray(_CAMERA_ROOMS)
     sitting = _areas(flat.SITTING_AREAS, dtype)
@@ -415,22 +419,42 @@ def make_rollout(config: ServiceConfig):
         ok = ok & inside & free & jnp.all(jnp.isfinite(zs), -1)
         sensor = jnp.concatenate([jnp.full(okc.size, _CEILING), jnp.full(rgbd_xy.shape[0], _RGBD),
                                   jnp.full(sensed.laser_mask.shape[0], _LASER)]).astype(jnp.int32)
-        # where a ceiling camera watches, the robot's detections update tracks but start none
-        seen = jax.vmap(lambda cam, room: ceiling_camera.in_footprint(cam, zs)
-                        & _in_box(room, zs))(cams, jnp.asarray(rooms, dtype))
-        covered = jnp.any(seen, 0) & (sensor != _CEILING)
-        return (zs, ok, sensor, covered), sensing_state, sensed, odom
+        return (zs, ok, sensor), sensing_state, sensed, odom
+
+    def covered(zs, sensor, tracks):
+        """[M] robot detections a ceiling camera would see: in its room and view, and not
+        hidden behind the confirmed tracks (the cameras' occlusion model with the tracked
+        people as occluders)."""
+        K = tracks.mean.shape[0]
+        others = tracks.mean[:, :2]
+        others_on = tracks.status == tracker.CONFIRMED
+        heights = jnp.full(K + 1, _STATURE, dtype)
+        radii = jnp.full(K + 1, _BODY_RADIUS, dtype)
+
+        def seen_by(cam, room, z):
+            people = jnp.concatenate([others, z[None]])
+            # a track on the detection itself is the person, not an occluder
+            near = jnp.sum((others - z) ** 2, -1) < 0.5 ** 2
+            mask = jnp.concatenate([others_on & ~near, jnp.ones(1, bool)])
+            proj = ceiling_camera.project_people(cam, people, heights, radii, mask)
+            return proj.visible[-1] & _in_box(room, z)
+
+        seen = jax.vmap(lambda z: jnp.any(jax.vmap(seen_by, (0, 0, None))(
+            cams, jnp.asarray(rooms, dtype), z)))(zs)
+        return seen & (sensor != _CEILING)
 
     def track(tracks, dets, group, params):
         """One tracker step on ``group``'s detections. With the ceiling cameras in the group,
-        a robot detection inside a camera's view gets confidence 1/2, under the tracker's
-        birth threshold: it updates the tracks but starts none (the cameras see that person
-        already; the robot's noisier, clutter-prone detections there only made duplicates)."""
-        zs, ok, sensor, covered = dets
+        a robot detection a camera would see (`covered`) gets confidence 1/2, under the
+        tracker's birth threshold: it updates the tracks but starts none (were a person there,
+        the camera would have started their track; the robot's noisier, clutter-prone
+        detections there only made false tracks). Where the cameras cannot see, behind
+        tracked people or out of their view, the robot's detections start tracks."""
+        zs, ok, sensor = dets
         keep = ok & jnp.isin(sensor, jnp.asarray(_SENSOR_GROUPS[group]))
         confidence = jnp.ones(zs.shape[0], dtype)
         if _CEILING in _SENSOR_GROUPS[group]:
-            confidence = jnp.where(covered, 0.5, 1.0).astype(dtype)
+            confidence = jnp.where(covered(zs, sensor, tracks), 0.5, 1.0).astype(dtype)
         det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor, confidence,
                                  jnp.zeros((zs.shape[0], 0), dtype))
         return tracker.step(tracks, det, params.tracker)
