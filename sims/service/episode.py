@@ -436,12 +436,15 @@ def make_rollout(config: ServiceConfig):
             # a track on the detection itself is the person, not an occluder
             near = jnp.sum((others - z) ** 2, -1) < 0.5 ** 2
             mask = jnp.concatenate([others_on & ~near, jnp.ones(1, bool)])
-            proj = ceiling_camera.project_people(cam, people, heights, radii, mask)
+            proj = ceiling_camera.project_people(cam, people, heights, radii, mask,
+                                                 rim_points=8, occlusion_grid=4)
             return proj.visible[-1] & _in_box(room, z)
 
+        # the ceiling cameras' own slots come first; only the robot's are checked
+        robot = zs[_CAMERA_SLOTS * len(_CAMERA_POSES):]
         seen = jax.vmap(lambda z: jnp.any(jax.vmap(seen_by, (0, 0, None))(
-            cams, jnp.asarray(rooms, dtype), z)))(zs)
-        return seen & (sensor != _CEILING)
+            cams, jnp.asarray(rooms, dtype), z)))(robot)
+        return jnp.concatenate([jnp.zeros(zs.shape[0] - robot.shape[0], bool), seen])
 
     def track(tracks, dets, group, params):
         """One tracker step on ``group``'s detections. With the ceiling cameras in the group,
