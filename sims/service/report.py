@@ -27,15 +27,16 @@ _ROWS = (("success", "success", "pct"),
          ("tv_crossing", "crossed a person-TV interaction", "pct"),
          ("final_distance", "final distance to the person [m]", "{:.2f}"),
          ("final_angle", "final bearing from the person's heading [deg]", "deg"),
+         ("heading_error", "person's heading error [deg]", "deg"),
          ("mota", "MOTA (behaviour's tracker)", "pct"),
          ("motp", "MOTP [m]", "{:.3f}"),
          ("mota_ceiling", "MOTA, ceiling cameras only", "pct"),
          ("mota_robot", "MOTA, robot only (RGB-D + laser)", "pct"))
 
 _RELEVANT = {
-    "avoid": {"right_pass", "tv_crossing", "final_distance", "final_angle"},
-    "overtake": {"tv_crossing", "final_distance", "final_angle"},
-    "tv": {"right_pass", "final_distance", "final_angle"},
+    "avoid": {"right_pass", "tv_crossing", "final_distance", "final_angle", "heading_error"},
+    "overtake": {"tv_crossing", "final_distance", "final_angle", "heading_error"},
+    "tv": {"right_pass", "final_distance", "final_angle", "heading_error"},
     "handover": {"right_pass", "tv_crossing"},
     "approach": {"right_pass", "tv_crossing", "time_to_goal", "mota", "motp", "rule"},
 }
