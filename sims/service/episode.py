@@ -110,6 +110,9 @@ class ServiceConfig:
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
+      person_q: ``approach``: the person's acceleration variance in seed 002's filter
+        (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
+        still person a velocity estimate noisy enough to swing the heading filter).
       robot_radius: the body (m). safety_margin: people's costs are inflated by the body
         plus this (m): the grid's cells, the tracks' errors (about 0.08 m) and pure pursuit's
         cut corners would otherwise put the body a few centimetres inside a lethal core.
@@ -130,6 +133,7 @@ class ServiceConfig:
     replan_every: int = 5
     settle: float = 1.0
     heading_slow: float = 1.0
+    person_q: float = 0.5
     robot_radius: float = 0.3
     safety_margin: float = 0.1
     v_max: float = 0.8
@@ -197,7 +201,7 @@ def make_params(config: ServiceConfig) -> ServiceParams:
                                      clutter_density=0.02, birth_confidence=0.75,
                                      dtype=dtype),
         potential_field.Params.create(dtype=dtype),
-        est.params(dt=config.control_dt),
+        est.params(dt=config.control_dt, q=config.person_q),
         jnp.asarray(0.6, dtype), jnp.asarray(1.0, dtype))
 
 
@@ -534,8 +538,14 @@ def make_rollout(config: ServiceConfig):
             done = at_goal
         return u, done, st, goal, target, dist
 
-    def approach_behaviour(s: State, key, sensed, ppl, params):
+    def approach_behaviour(s: State, key, sensed, ppl, params, pose):
         est_state, e = estimator.update(key, s.estimator, sensed, params.estimator)
+        if config.perception == "truth":
+            # the true person, in the odometry frame: the controller's floor
+            turn = sensed.odom_pose[2] - pose[2]
+            xy = geometry.from_frame(sensed.odom_pose, geometry.to_frame(pose, ppl.pos[0]))
+            e = e._replace(user=jnp.concatenate([xy, geometry.rotate(turn, ppl.vel[0])]),
+                           user_heading=wrap(ppl.heading[0] + turn))
         p = e.user
         heading = e.user_heading
         if config.interest is None:
@@ -559,7 +569,7 @@ def make_rollout(config: ServiceConfig):
         K = _TRACKER.capacity
         if approach:
             tracks, extra = s.tracks, s.extra_tracks
-            est_state, e, pi, u = approach_behaviour(s, ks[5], sensed, ppl, params)
+            est_state, e, pi, u = approach_behaviour(s, ks[5], sensed, ppl, params, pose)
             dist = s.dist
             est_world = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose,
                                                                      e.user[:2]))

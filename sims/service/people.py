@@ -3,7 +3,8 @@ waiting for a hand-over, with the occasional step backwards or sideways.
 
 Every person has a *role* and a short route of waypoints:
 
-- `WALKER`: walks its waypoints at its own speed, turning toward each, and stands at the last;
+- `WALKER`: walks its waypoints at its own speed, turning toward each, and stands at the last
+  (from then on it stays where it is: a later step does not send it back);
   it stops while the robot is close ahead of it (0.7 m, within 60 deg of its heading), as a
   person would rather than walk into it;
 - `STANDER`: stands at its place, facing its heading;
@@ -121,7 +122,8 @@ def step(key: Array, people: People, robot_pose: Array, dt) -> People:
     target = jnp.take_along_axis(people.route, idx[:, None, None], 1)[:, 0]
     direction, dist = _unit(target - people.pos)
     last = people.leg >= people.route_len - 1
-    arrived = last & (dist < _REACHED)
+    done = people.leg >= people.route_len          # arrived earlier: stays where they are
+    arrived = done | (last & (dist < _REACHED))
     mobile = (people.role == WALKER) | (people.role == WAITER)
     to_robot, d_robot = _unit(robot_pose[:2] - people.pos)
     facing = jnp.stack([jnp.cos(people.heading), jnp.sin(people.heading)], -1)
@@ -134,7 +136,7 @@ def step(key: Array, people: People, robot_pose: Array, dt) -> People:
     pos = people.pos + vel * dt
     heading = jnp.where(walking & (dist > 1e-3),
                         jnp.arctan2(direction[:, 1], direction[:, 0]), people.heading)
-    leg = jnp.where(mobile & ~last & (dist < _REACHED), people.leg + 1, people.leg)
+    leg = jnp.where(mobile & ~done & (dist < _REACHED), people.leg + 1, people.leg)
     spd = jnp.sqrt(jnp.sum(vel * vel, -1))
     phase = jnp.mod(people.phase + 2.0 * jnp.pi * pedestrians.cadence(spd) * dt, 2.0 * jnp.pi)
     return people._replace(pos=pos, vel=vel, heading=heading, phase=phase, leg=leg,
