@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -102,22 +101,15 @@ def run_person_following(episodes: int = 256, estimator: str = "pf", follower: s
     """
     import jax
 
-    from jaxtrack import montecarlo
+    from sims._runs import timed_evaluate
     from sims.following import episode as ep
 
     cfg, episode_fn = _episode(layout, estimator, sensors, particles, appearance, wander,
                                people, float(duration))
     params = ep.make_params(cfg, point=follower)
     key = jax.random.PRNGKey(seed)
-    bs = min(episodes, batch_size or 64)
-    compile_s = montecarlo.warm_up(episode_fn, params, key, bs)
-    bar = montecarlo.progress_bar(episodes, disable=not progress)
-    t1 = time.perf_counter()
-    res = montecarlo.evaluate(episode_fn, params, key, episodes, batch_size=bs, progress=False,
-                              on_batch=lambda done, total: bar.update(done - bar.n))
-    bar.close()
-    run_s = time.perf_counter() - t1
-    m = {k: np.asarray(v) for k, v in res.metrics.items()}
+    m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
+                                         progress)
     title = (f"person following ({layout}{', wandering user' if wander else ''}): {episodes} "
              f"episodes x {duration:.0f} s, estimator {estimator}"
              f" ({sensors}{', appearance' if appearance else ''}), follower point {follower}, "

@@ -8,7 +8,6 @@ from __future__ import annotations
 import functools
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -118,22 +117,15 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     """
     import jax
 
-    from jaxtrack import montecarlo
+    from sims._runs import timed_evaluate
     from sims.service import episode as ep
 
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration))
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
-    bs = min(episodes, batch_size or 64)
-    compile_s = montecarlo.warm_up(episode_fn, params, key, bs)
-    bar = montecarlo.progress_bar(episodes, disable=not progress)
-    t1 = time.perf_counter()
-    res = montecarlo.evaluate(episode_fn, params, key, episodes, batch_size=bs, progress=False,
-                              on_batch=lambda done, total: bar.update(done - bar.n))
-    bar.close()
-    run_s = time.perf_counter() - t1
-    m = {k: np.asarray(v) for k, v in res.metrics.items()}
+    m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
+                                         progress)
     pi = "estimated" if interest is None else f"{float(interest):g}"
     title = (f"service robot, experiment {experiment}: {episodes} episodes x {duration:.0f} s, "
              f"perception {perception}" + (f", person interest {pi}"
