@@ -64,3 +64,74 @@ def test_heading_filter_is_differentiable_in_its_coefficients():
 def test_bad_velocity_shape_is_rejected():
     with pytest.raises(ValueError, match="velocities"):
         heading.ar_heading_filter(0.0, jnp.zeros((5, 3)))
+
+
+# --- the windowed variant -------------------------------------------------------------------
+
+def _windowed_reference(heading0, positions, window, dt, min_distance):
+    """A plain loop over a list of past positions (the first repeated before the start)."""
+    past = [np.asarray(positions[0], float)] * window
+    th, out = heading0, []
+    for p in positions:
+        d = np.asarray(p, float) - past[-window]
+        if np.hypot(*d) >= min_distance:
+            v = d / (window * dt)
+            b = beta_eq13(np.hypot(*v))
+            e = (np.arctan2(v[1], v[0]) - th + np.pi) % (2 * np.pi) - np.pi
+            th = (th + (1 - b) * e + np.pi) % (2 * np.pi) - np.pi
+        past.append(np.asarray(p, float))
+        out.append(th)
+    return np.asarray(out)
+
+
+def _run_windowed(heading0, positions, window=20, dt=0.1, min_distance=0.5):
+    positions = jnp.asarray(positions)
+    s0 = heading.windowed_heading_init(heading0, positions[0], window)
+
+    def body(s, p):
+        s = heading.windowed_heading_step(s, p, dt, min_distance=min_distance)
+        return s, s.heading
+
+    return np.asarray(jax.lax.scan(body, s0, positions)[1])
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_windowed_filter_equals_a_loop_over_the_window(dtype):
+    rng = np.random.default_rng(3)
+    # walk, stand, walk the other way, with position noise
+    v = np.concatenate([np.tile([0.5, 0.1], (40, 1)), np.zeros((30, 2)),
+                        np.tile([-0.2, 0.45], (40, 1))])
+    pos = np.cumsum(v * 0.1, 0) + 0.01 * rng.standard_normal(v.shape)
+    out = _run_windowed(0.3, pos.astype(dtype))
+    ref = _windowed_reference(0.3, pos.astype(dtype).astype(float), 20, 0.1, 0.5)
+    np.testing.assert_allclose(out, ref, atol=1e-5 if dtype == jnp.float32 else 1e-10)
+    assert out.dtype == dtype
+
+
+def test_a_step_backwards_leaves_the_windowed_heading_but_turns_eq_12s():
+    # standing facing +x, then a 1 s step backwards at 0.3 m/s, then still again
+    v = np.concatenate([np.zeros((30, 2)), np.tile([-0.3, 0.0], (10, 1)), np.zeros((30, 2))])
+    pos = np.cumsum(v * 0.1, 0)
+    windowed = _run_windowed(0.0, pos)
+    np.testing.assert_array_equal(windowed, 0.0)
+    ar = np.asarray(heading.ar_heading_filter(0.0, jnp.asarray(v)))
+    assert np.max(np.abs(ar)) > 2.5          # eq. 12-13 at 10 Hz: turned almost round
+
+
+def test_walking_turns_the_windowed_heading_to_the_direction_of_motion():
+    v = np.tile([0.0, 0.5], (40, 1))         # along +y at 0.5 m/s from heading 0
+    out = _run_windowed(0.0, np.cumsum(v * 0.1, 0))
+    assert out[8] == 0.0                      # under 0.5 m moved: held
+    np.testing.assert_allclose(out[-1], np.pi / 2, atol=1e-3)
+
+
+def test_windowed_filter_skips_a_missing_position_and_refuses_a_bad_window():
+    pos = np.cumsum(np.tile([0.5, 0.0], (30, 1)) * 0.1, 0)
+    with_gap = pos.copy()
+    with_gap[12] = np.nan
+    out = _run_windowed(1.0, with_gap)
+    assert np.all(np.isfinite(out))
+    with pytest.raises(ValueError, match="window"):
+        heading.windowed_heading_init(0.0, jnp.zeros(2), 0)
+    with pytest.raises(ValueError, match="position"):
+        heading.windowed_heading_init(0.0, jnp.zeros(3), 5)
