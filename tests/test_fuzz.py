@@ -212,6 +212,129 @@ def cloud(depth=np.full((6, 8), 2.0), max_points=5):
     return (np.asarray(pts)[np.asarray(mask)],)
 
 
+# The RGB-D people detector's stages (seed 001) and the service scene's library functions
+# (ceiling cameras, person status, costmap, grid planner, person interest; seeds 002 and 003).
+CLOUD = np.concatenate([RNG.uniform([-0.3, -0.3, 0.0], [0.3, 0.3, 1.7], size=(40, 3)),
+                        RNG.uniform([-2.0, -2.0, 0.0], [2.0, 2.0, 0.01], size=(40, 3))])
+
+
+def voxels(points=CLOUD, size=0.1):
+    from jaxtrack.perception import voxel_grid
+
+    spec = voxel_grid.GridSpec(size, (-2.5, -2.5, -0.5), (50, 50, 25))
+    g = voxel_grid.voxelise(spec, points, capacity=64)
+    return (np.asarray(g.points)[np.asarray(g.mask)],)
+
+
+def plane(points=CLOUD, threshold=0.06):
+    from jaxtrack.perception import ground_plane
+
+    fit = ground_plane.fit_ground_plane(jax.random.PRNGKey(0), points,
+                                        np.ones(points.shape[0], bool),
+                                        ground_plane.horizontal_plane(dtype=jnp.float64),
+                                        num_hypotheses=8, threshold=threshold)
+    return (fit.plane,)
+
+
+def clusters(neighbours=np.stack([np.arange(1, 7) % 6, np.full(6, -1)], -1), min_size=1):
+    from jaxtrack.perception import euclidean_clustering
+
+    c = euclidean_clustering.euclidean_clusters(neighbours, np.ones(neighbours.shape[0], bool),
+                                                min_size=min_size, capacity=3)
+    return (np.asarray(c.sizes),)
+
+
+def heads(points=CLOUD):
+    from jaxtrack.perception import ground_plane, head_subclustering
+
+    labels = np.zeros(points.shape[0], np.int32)
+    h = head_subclustering.subcluster_heads(
+        head_subclustering.HeadConfig(), points, np.ones(points.shape[0], bool), labels,
+        ground_plane.horizontal_plane(dtype=jnp.float64), np.array([-3.0, 0.0, 1.1]),
+        num_clusters=2)
+    return (np.asarray(h.position)[np.asarray(h.mask)],)
+
+
+def hog_features(window=RNG.uniform(size=(128, 64))):
+    from jaxtrack.perception import hog
+
+    return (hog.hog(window),)
+
+
+def rgbd_detect(points=CLOUD):
+    from jaxtrack.perception import rgbd_people
+
+    cfg = rgbd_people.RGBDPeopleConfig()
+    state = rgbd_people.init_state(cfg, dtype=jnp.float64)
+    _, frame = rgbd_people.detect(cfg, state, jax.random.PRNGKey(0), points, None, None,
+                                  np.array([-3.0, 0.0, 1.1]))
+    return (np.asarray(frame.people.position)[np.asarray(frame.people.mask)],)
+
+
+CAMERA_PEOPLE = np.array([[0.5, 0.2], [-1.0, 1.0]])
+
+
+def ceiling_detect(people_xy=CAMERA_PEOPLE, sigma=0.1, p_detect=0.9):
+    from jaxtrack.perception import ceiling_camera
+
+    cam = ceiling_camera.look_at((0.0, 0.0, 2.8), (0.5, 0.0, 0.0), fx=300.0, dtype=jnp.float64)
+    n = people_xy.shape[0]
+    z, ok = ceiling_camera.detect(cam, jax.random.PRNGKey(0), people_xy, np.full(n, 1.7),
+                                  np.full(n, 0.2), np.ones(n, bool), capacity=4, sigma=sigma,
+                                  p_detect=p_detect)
+    return (np.asarray(z)[np.asarray(ok)],)
+
+
+def camera(position=(0.0, 0.0, 2.8), fx=300.0):
+    from jaxtrack.perception import ceiling_camera
+
+    cam = ceiling_camera.look_at(position, (0.5, 0.0, 0.0), fx=fx, dtype=jnp.float64)
+    return (ceiling_camera.ground_homography(cam),)
+
+
+def person_status(position=CAMERA_PEOPLE, velocity=np.array([[0.5, 0.0], [0.0, 0.0]])):
+    from jaxtrack.tracking import status
+
+    n = position.shape[0]
+    st = status.classify(position, velocity, np.zeros(n))
+    return (st.heading, np.asarray(st.status))
+
+
+def costmap_build(people_xy=CAMERA_PEOPLE, heading=np.zeros(2), edge_cost=0.1):
+    from jaxtrack.control import costmap
+
+    grid = costmap.Grid(jnp.asarray([-2.0, -2.0]), jnp.asarray(0.2), (20, 20))
+    params = costmap.CostParams.create(edge_cost=edge_cost, dtype=jnp.float64)
+    n = people_xy.shape[0]
+    return (costmap.build(grid, params, people_xy, heading, np.zeros(n, np.int32)),)
+
+
+PLAN_COST = RNG.uniform(size=(8, 8))
+
+
+def plan(cost=PLAN_COST, goal_cell=np.array([7, 7])):
+    from jaxtrack.control import grid_planner
+
+    dist = grid_planner.distance_field(cost, goal_cell)
+    path = grid_planner.extract_path(dist, np.array([0, 0]), 16, cost=cost)
+    return (dist, np.asarray(path.cells))
+
+
+def follow(v_max=0.5, pose=np.zeros(3)):
+    from jaxtrack.control import grid_planner
+
+    return (grid_planner.track_path(pose, np.array([1.0, 0.5]),
+                                    grid_planner.Params.create(v_max=v_max, dtype=jnp.float64)),)
+
+
+def interest(cases=None, bandwidth=0.5, features=np.array([2.0, 0.1, 0.0, 0.0])):
+    from jaxtrack.control import person_interest
+
+    kw = {} if cases is None else {"cases": cases}
+    cb = person_interest.CaseBase.create(bandwidth=bandwidth, dtype=jnp.float64, **kw)
+    return (person_interest.estimate(cb, features),)
+
+
 def _nan(a):
     a = np.array(a, dtype=np.float64)
     a.flat[0] = np.nan
@@ -335,6 +458,47 @@ CASES = [
     ("dtype", leg_feats, {"ranges": np.full(90, 3.0, np.float32)}, "ranges", "ok"),
     ("dtype", cloud, {"depth": np.full((6, 8), 2, int)}, "depth", "either"),
     ("dtype", cloud, {"depth": np.full((6, 8), 2.0, np.float32)}, "depth", "ok"),
+    # the RGB-D detector's stages and the service scene's library functions
+    ("empty", voxels, {"points": np.zeros((0, 3))}, "points", "ok"),
+    ("empty", plane, {"points": np.zeros((0, 3))}, "points", "ok"),
+    ("empty", clusters, {"neighbours": np.zeros((0, 2), np.int32)}, "neighbours", "ok"),
+    ("empty", heads, {"points": np.zeros((0, 3))}, "points", "ok"),
+    ("empty", rgbd_detect, {"points": np.zeros((0, 3))}, "points", "ok"),
+    ("empty", ceiling_detect, {"people_xy": np.zeros((0, 2))}, "people_xy", "ok"),
+    ("empty", person_status, {"position": np.zeros((0, 2)), "velocity": np.zeros((0, 2))},
+     "position", "ok"),
+    ("empty", costmap_build, {"people_xy": np.zeros((0, 2)), "heading": np.zeros(0)},
+     "people_xy", "ok"),
+    ("empty", interest, {"cases": np.zeros((0, 5))}, "cases", "ok"),
+    ("nan", voxels, {"points": _nan(CLOUD)}, "points", "ok"),          # dropped
+    ("nan", rgbd_detect, {"points": _nan(CLOUD)}, "points", "ok"),
+    ("nan", hog_features, {"window": _nan(np.ones((128, 64)))}, "window", "error"),
+    ("nan", ceiling_detect, {"people_xy": _nan(CAMERA_PEOPLE)}, "people_xy", "either"),
+    ("nan", camera, {"position": (0.0, np.nan, 2.8)}, "position", "error"),
+    ("nan", person_status, {"velocity": _nan(np.zeros((2, 2)))}, "velocity", "either"),
+    ("nan", costmap_build, {"people_xy": _nan(CAMERA_PEOPLE)}, "people_xy", "either"),
+    ("nan", plan, {"cost": _nan(PLAN_COST)}, "cost", "either"),
+    ("nan", follow, {"pose": _nan(np.zeros(3))}, "pose", "either"),
+    ("nan", interest, {"features": _nan(np.ones(4))}, "features", "either"),
+    ("scale", voxels, {"size": -0.1}, "size", "error"),
+    ("scale", plane, {"threshold": -0.06}, "threshold", "error"),
+    ("scale", clusters, {"min_size": -1}, "min_size", "either"),
+    ("scale", ceiling_detect, {"sigma": -0.1}, "sigma", "error"),
+    ("scale", ceiling_detect, {"p_detect": 1.5}, "p_detect", "error"),
+    ("scale", camera, {"fx": -300.0}, "fx", "error"),
+    ("scale", camera, {"position": (0.5, 0.0, 0.0)}, "position", "error"),  # at its target
+    ("scale", costmap_build, {"edge_cost": 1.5}, "edge_cost", "error"),
+    ("scale", plan, {"cost": -PLAN_COST}, "cost", "error"),
+    ("scale", plan, {"goal_cell": np.array([9, 0])}, "goal_cell", "either"),
+    ("scale", follow, {"v_max": -0.5}, "v_max", "error"),
+    ("scale", interest, {"bandwidth": -0.5}, "bandwidth", "error"),
+    ("dtype", voxels, {"points": CLOUD.astype(np.float32)}, "points", "ok"),
+    ("dtype", voxels, {"points": np.round(CLOUD).astype(int)}, "points", "either"),
+    ("dtype", hog_features, {"window": (255 * RNG.uniform(size=(128, 64))).astype(np.uint8)},
+     "window", "either"),
+    ("dtype", costmap_build, {"people_xy": CAMERA_PEOPLE.astype(np.float32)}, "people_xy", "ok"),
+    ("dtype", plan, {"cost": PLAN_COST.astype(np.float32)}, "cost", "ok"),
+    ("dtype", person_status, {"position": CAMERA_PEOPLE.astype(int)}, "position", "either"),
 ]
 
 

@@ -148,7 +148,8 @@ class CaseBase(NamedTuple):
 
         Args:
           cases: [M, 5] rows (default `DEFAULT_CASES`); M may be 0.
-          capacity: number of slots N >= M (default M); slots past M are empty, for `add_case`.
+          capacity: number of slots N >= M (default M, at least 1); slots past M are empty,
+            for `add_case`.
           scales: [4] positive feature scales (m, rad, m/s, m/s).
           bandwidth: positive kernel bandwidth in scaled units.
           default_interest: PI in [0, 1] returned while the base is empty.
@@ -170,7 +171,7 @@ class CaseBase(NamedTuple):
             raise ValueError("cases: facing angle (column 1) must be in [0, 180] deg")
         _checks.check_probability("cases[:, 4] (PI)", rows[:, 4])
         m = rows.shape[0]
-        n = m if capacity is None else int(capacity)
+        n = max(m, 1) if capacity is None else int(capacity)
         if n < m or n < 1:
             raise ValueError(f"capacity must be >= the number of cases ({m}) and >= 1; got {n}")
         _checks.check_shape("scales", scales, (NUM_FEATURES,))

@@ -151,6 +151,7 @@ def hog(window: Array, config: HOGConfig = HOGConfig()) -> Array:
     Example:
       >>> f = hog(crop(image, box))       # [3780]
     """
+    _checks.check_finite("window", window)   # a NaN pixel would spread to every block
     img = jnp.asarray(window)
     if img.ndim == 2:
         img = img[..., None]
