@@ -60,7 +60,7 @@ from sims.following import kinect, layout as layout_mod, pedestrians
 
 Array = jax.Array
 
-__all__ = ["CrowdConfig", "Pipeline", "ABLATIONS", "People", "Sensed", "sample_people",
+__all__ = ["CrowdConfig", "Pipeline", "ABLATIONS", "FLOORS", "People", "Sensed", "sample_people",
            "people_at", "static_scene", "sense", "base_camera", "to_world", "episode", "frames",
            "score", "training_crops"]
 
@@ -128,6 +128,9 @@ class Pipeline:
         threshold); 0.4 keeps 96 % of the candidates that are people and 10 % of the others in
         the "obstacles" scenario (``docs/rgbd_people.md``).
       birth_confidence: smallest HOG confidence that starts a track.
+      oracle: replace the detector's output by the true positions of the visible people
+        (plus ``oracle_noise``, m, per axis), confidence 1, no appearance: the tracker's floor,
+        what it reaches when detection is perfect.
     """
 
     subcluster: bool = True
@@ -139,6 +142,8 @@ class Pipeline:
     beta: float = 2.0
     min_confidence: float = 0.4
     birth_confidence: float = 0.5
+    oracle: bool = False
+    oracle_noise: float = 0.0
 
     def detector(self) -> rgbd_people.RGBDPeopleConfig:
         return rgbd_people.RGBDPeopleConfig(heads=HeadConfig(subcluster=self.subcluster))
@@ -166,6 +171,11 @@ ABLATIONS = {
     "no appearance": Pipeline(appearance=False),
     "no confidence": Pipeline(confidence=False),
 }
+FLOORS = {
+    "perfect detections": Pipeline(oracle=True, appearance=False),
+    "truth + 0.1 m noise": Pipeline(oracle=True, oracle_noise=0.1, appearance=False),
+}
+"""The tracker on the visible people's true positions: the MOTA floor the detector is held to."""
 
 
 class People(NamedTuple):
@@ -388,29 +398,37 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
         det_state, seen = rgbd_people.detect(dcfg, det_state, k_det, z.points, z.points_ok,
                                              z.points_rgb, camera.position, image=z.colour,
                                              camera=camera, svm=svm)
-        # Estimate (world frame: the robot's odometry is perfect).
-        world = to_world(robot, seen.people.position[:, :2])
-        kept = seen.people.mask & (seen.confidence >= (pipeline.min_confidence
-                                                        if pipeline.confidence else 0.0))
-        dets = tracking.Detections(world, kept,
-                                   jnp.zeros(world.shape[0], jnp.int32), seen.confidence,
-                                   seen.histograms if pipeline.appearance
-                                   else jnp.zeros((world.shape[0], 0), dtype))
-        tracks = tracking.step(tracks, dets, params)
-        # Record.
+        # Who is visible (the ground truth of the scores, and the oracle's detections).
         eye, rot = z.eye, z.rot
         rel = crowd.pos - eye[:2]
         along = rel @ rot[:2, 2] / jnp.maximum(jnp.linalg.norm(rot[:2, 2]), 1e-9)
         shown = _person_pixels(cam, z.image.hit, z.valid, P)
         visible = people.mask & (shown >= cfg.min_visible
                                  * _expected_pixels(cam, along, people.stature))
+        # Estimate (world frame: the robot's odometry is perfect).
+        if pipeline.oracle:
+            noise = pipeline.oracle_noise * jax.random.normal(k_det, crowd.pos.shape, dtype)
+            world = (crowd.pos + noise).astype(dtype)
+            kept = visible
+            confidence = jnp.ones(P, dtype)
+        else:
+            world = to_world(robot, seen.people.position[:, :2])
+            kept = seen.people.mask & (seen.confidence >= (pipeline.min_confidence
+                                                            if pipeline.confidence else 0.0))
+            confidence = seen.confidence
+        dets = tracking.Detections(world, kept,
+                                   jnp.zeros(world.shape[0], jnp.int32), confidence,
+                                   seen.histograms if pipeline.appearance
+                                   else jnp.zeros((world.shape[0], 0), dtype))
+        tracks = tracking.step(tracks, dets, params)
+        # Record.
         confirmed = tracks.status == tracking.CONFIRMED
         in_view = _in_view(cam, eye, rot, crowd.pos)
         partial = people.mask & ~visible & (in_view | (shown > 0))
         shown_track = confirmed & _in_view(cam, eye, rot, tracks.mean[:, :2])
         rec = dict(truth=crowd.pos, visible=visible, partial=partial, detections=world,
                    det_mask=dets.mask,
-                   confidence=seen.confidence, track_pos=tracks.mean[:, :2],
+                   confidence=confidence, track_pos=tracks.mean[:, :2],
                    track_id=jnp.where(shown_track, tracks.id, -1), track_mask=shown_track,
                    track_misses=tracks.misses, robot=robot)
         return (det_state, tracks), rec

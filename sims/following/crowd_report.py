@@ -86,7 +86,7 @@ def run_rgbd_people(episodes: int = 32, scenario: str = "complex", duration: flo
     Args:
       episodes: episodes per pipeline; scenario: "simple", "complex" or "obstacles";
       duration: seconds per episode; resolution: (width, height) of the Kinect;
-      ablations: names of `crowd.ABLATIONS` to run; seed: PRNG seed; out: folder for the table
+      ablations: names of `crowd.ABLATIONS` (or `crowd.FLOORS`) to run; seed: PRNG seed; out: folder for the table
       (``rgbd_people.txt``), the per-episode metrics (``metrics.npz``) and a figure of one
       frame (``frame.png``); batch_size: episodes per batch; svm: the confidence's SVM
       (default: the shipped one).
@@ -101,7 +101,8 @@ def run_rgbd_people(episodes: int = 32, scenario: str = "complex", duration: flo
     results = {}
     for name in ablations:
         t0 = time.perf_counter()
-        res = montecarlo.evaluate(_episode_fn(cfg, crowd.ABLATIONS[name]), svm, key, episodes,
+        pipeline = {**crowd.ABLATIONS, **crowd.FLOORS}[name]
+        res = montecarlo.evaluate(_episode_fn(cfg, pipeline), svm, key, episodes,
                                   batch_size=batch_size, progress=False)
         results[name] = {k: np.asarray(v) for k, v in res.metrics.items()}
         if progress:

@@ -99,6 +99,21 @@ def test_episode_scores_are_clear_mot_of_the_record(small_episode):
         / max(objects, 1), abs=1e-6)
 
 
+def test_the_oracle_feeds_the_tracker_the_visible_peoples_true_positions():
+    # the tracker's floor: detections are the visible people, where they are, confidence 1
+    svm = hog.LinearSVM(jnp.zeros(hog.num_features()), jnp.asarray(1.0))
+    rec = jax.jit(lambda k: crowd.frames(k, SMALL, crowd.FLOORS["perfect detections"],
+                                         svm))(jax.random.key(3))
+    visible = np.asarray(rec["visible"])
+    assert visible.any()
+    np.testing.assert_array_equal(np.asarray(rec["det_mask"]), visible)
+    np.testing.assert_array_equal(np.asarray(rec["detections"])[visible],
+                                  np.asarray(rec["truth"])[visible])
+    np.testing.assert_array_equal(np.asarray(rec["confidence"]), 1.0)
+    out = crowd.score(SMALL, rec)
+    assert int(out["det_false_positives"]) == 0 and int(out["det_misses"]) == 0
+
+
 def test_ablation_table_pools_episodes_and_pairs_differences():
     full = dict(misses=np.array([1, 2]), false_positives=np.array([0, 2]),
                 id_switches=np.array([0, 0]), objects=np.array([10, 20]),
