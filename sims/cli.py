@@ -118,8 +118,10 @@ def main(argv: list[str] | None = None) -> int:
                       help="Kinect image size (seed 001 acquired 160 x 120; QVGA 320 240)")
     rgbd.add_argument("--ablations", nargs="+", default=None,
                       choices=("full", "no-sub-clustering", "no-velocity", "no-appearance",
-                               "no-confidence"),
-                      help="pipelines to run (default: all five)")
+                               "no-confidence", "perfect-detections", "noisy-truth"),
+                      help="pipelines to run (default: the full one and its four ablations; "
+                           "perfect-detections and noisy-truth feed the tracker the visible "
+                           "people's true positions, exact or with 0.1 m noise: its floor)")
     rgbd.add_argument("--batch-size", type=int, default=None)
     rgbd.add_argument("--out", type=Path, default=None,
                       help="directory for the table, the metrics and a figure of one frame")
@@ -138,6 +140,11 @@ def main(argv: list[str] | None = None) -> int:
                           "compare their MOTA with all sensors'")
     svc.add_argument("--interest", default="0.5",
                      help="approach: the person interest (0-1), or 'estimated'")
+    svc.add_argument("--heading-filter", choices=("ar", "windowed"), default="ar",
+                     help="approach: seed 002's AR heading filter on the velocity, or the "
+                          "windowed one that holds the heading through short steps")
+    svc.add_argument("--pan", action="store_true",
+                     help="approach: the RGB-D camera on its pan unit, turned to the person")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -372,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
 
         run_service(args.experiment, args.episodes, args.duration, args.perception,
                     args.compare_sensors, interest, args.out, args.seed, args.batch_size,
-                    args.animate)
+                    args.animate, heading_filter=args.heading_filter, pan=args.pan)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
@@ -388,7 +395,9 @@ def main(argv: list[str] | None = None) -> int:
 
         names = tuple({"full": "full", "no-sub-clustering": "no sub-clustering",
                        "no-velocity": "no velocity", "no-appearance": "no appearance",
-                       "no-confidence": "no confidence"}[a]
+                       "no-confidence": "no confidence",
+                       "perfect-detections": "perfect detections",
+                       "noisy-truth": "truth + 0.1 m noise"}[a]
                       for a in (args.ablations or ("full", "no-sub-clustering", "no-velocity",
                                                    "no-appearance", "no-confidence")))
         run_rgbd_people(args.episodes, args.scenario, args.duration, tuple(args.resolution),

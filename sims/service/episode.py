@@ -35,7 +35,9 @@ from a person's centre to the robot's body, its 0.3 m disc), and the rule violat
 ``tv_crossing`` (the robot's body touched the segment between a seated person and the TV),
 ``intimate`` (any frame inside anyone's intimate zone); for ``handover`` and ``approach`` the
 final pose relative to the person and ``heading_error``, the mean absolute error of the
-estimated heading of the task's person after the first ``settle`` seconds. The multi-target tracker's CLEAR MOT and position RMSE are
+estimated heading of the task's person after the first ``settle`` seconds, and
+``person_lost``, that person's position estimate was more than 1 m off at some frame after
+them. The multi-target tracker's CLEAR MOT and position RMSE are
 scored against every present person.
 """
 
@@ -53,7 +55,7 @@ from scipy import ndimage
 from jaxtrack import geometry
 from jaxtrack import metrics as jmetrics
 from jaxtrack.angles import wrap
-from jaxtrack.control import costmap, grid_planner, person_interest, potential_field
+from jaxtrack.control import costmap, grid_planner, pan_tilt, person_interest, potential_field
 from jaxtrack.filters import heading as heading_filter
 from jaxtrack.perception import ceiling_camera, sensing
 from jaxtrack.tracking import status as status_mod
@@ -67,9 +69,10 @@ Array = jax.Array
 
 __all__ = ["ServiceConfig", "ServiceParams", "Frame", "PERCEPTION", "make_params",
            "make_rollout", "make_episode", "summarize", "static_cost", "cameras", "grid",
-           "build_scene", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE"]
+           "build_scene", "HEADING_FILTERS", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE"]
 
 PERCEPTION = ("all", "ceiling", "robot", "truth")
+HEADING_FILTERS = ("ar", "windowed")
 INTIMATE, PERSONAL = costmap.INTIMATE, costmap.PERSONAL
 GOAL_TOLERANCE = 0.25
 MOT_THRESHOLD = 0.5
@@ -110,6 +113,17 @@ class ServiceConfig:
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
+      heading_filter: ``approach``: "ar", seed 002's eqs. 12-13 on the filter's velocity, or
+        "windowed" (`jaxtrack.filters.heading.windowed_heading_step`): the same equations on
+        the mean velocity over ``heading_window`` seconds, the heading held while the person
+        has moved less than ``heading_min_distance`` (m) over it, so that a step backwards or
+        sideways does not turn it.
+      pan: ``approach``: the RGB-D camera's pan unit (`jaxtrack.control.pan_tilt`), servoed to
+        the estimated person, or None (the camera looks ahead).
+      map_filter_estimator: ``approach``: the map filter (detections outside the flat or in
+        walls and furniture dropped) also on the estimator's candidates.
+      feed_forward: ``approach``: add the person's estimated velocity to the descent
+        (`jaxtrack.control.potential_field.approach_velocity`'s ``person_vel``).
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
@@ -133,6 +147,12 @@ class ServiceConfig:
     replan_every: int = 5
     settle: float = 1.0
     heading_slow: float = 1.0
+    heading_filter: str = "ar"
+    feed_forward: bool = False
+    map_filter_estimator: bool = False
+    pan: pan_tilt.PanTiltConfig | None = None
+    heading_window: float = 2.0
+    heading_min_distance: float = 0.5
     person_q: float = 0.5
     robot_radius: float = 0.3
     safety_margin: float = 0.1
@@ -156,6 +176,12 @@ class ServiceConfig:
             raise ValueError(f"cell must be in [0.05, 0.5] m; got {self.cell}")
         if self.replan_every < 1 or self.sweeps < 1:
             raise ValueError("replan_every and sweeps must be >= 1")
+        if self.heading_filter not in HEADING_FILTERS:
+            raise ValueError(f"unknown heading_filter {self.heading_filter!r}; choose one of "
+                             f"{HEADING_FILTERS}")
+        if not (self.heading_window >= self.control_dt and self.heading_min_distance >= 0):
+            raise ValueError("heading_window must be >= one frame and heading_min_distance "
+                             ">= 0")
 
     @property
     def num_frames(self) -> int:
@@ -285,6 +311,8 @@ class State(NamedTuple):
     t: Array
     heading: Array
     ids: Array
+    person_heading: heading_filter.WindowedHeading
+    pan: pan_tilt.PanState
 
 
 class Frame(NamedTuple):
@@ -364,6 +392,8 @@ def make_rollout(config: ServiceConfig):
     if config.compare_sensors:
         groups = groups + [g_ for g_ in ("ceiling", "robot") if g_ != groups[0]]
     cases = person_interest.CaseBase.create(dtype=dtype)
+    window = max(1, int(round(config.heading_window / dt)))
+    heading_params = heading_filter.HeadingParams(slow=config.heading_slow)
 
     def reset(key, params):
         k_setup, k_est = jax.random.split(key)
@@ -380,7 +410,11 @@ def make_rollout(config: ServiceConfig):
                             sensing.init(scfg.sensing, dtype), pose, tracks,
                             tuple(tracks for _ in groups[1:]), est, pi0, jnp.asarray(False),
                             dist, jnp.int32(0), jnp.zeros(_TRACKER.capacity, dtype),
-                            jnp.full(_TRACKER.capacity, -1, jnp.int32))
+                            jnp.full(_TRACKER.capacity, -1, jnp.int32),
+                            heading_filter.windowed_heading_init(
+                                jnp.arctan2(pose[1] - ppl.pos[0, 1], pose[0] - ppl.pos[0, 0]),
+                                ppl.pos[0], window),
+                            pan_tilt.init(dtype))
 
     def world_step(key, s: State):
         ppl = people_mod.step(key, s.people, s.robot, dt)
@@ -392,13 +426,15 @@ def make_rollout(config: ServiceConfig):
         sensing step (odometry frame, for the approach's estimator)."""
         k_obs, k_cam = keys[:3], keys[3]
         colours = jnp.zeros((P, 3), dtype)
+        pan = None if config.pan is None else s.pan.angle
         obs = world.observe(k_obs, scfg, sc, laser, s.robot, pose,
-                            people_mod.as_pedestrians(ppl), colours)
+                            people_mod.as_pedestrians(ppl), colours, pan)
         odom = geometry.compose(s.odom, obs.increment)
         sensing_state, sensed = sensing.sense(
             scfg.sensing, s.sensing, obs.ranges, laser.angles,
             sensing.Odometry(odom, obs.increment), obs.rgbd.xy, obs.rgbd.mask, obs.rgbd.colour,
             static_map, map_pose=pose, period=dt)
+        sensed = sensed._replace(camera_pan=pan)
         heights = jnp.full(P, _STATURE, dtype)
         radii = jnp.full(P, _BODY_RADIUS, dtype)
 
@@ -538,7 +574,20 @@ def make_rollout(config: ServiceConfig):
             done = at_goal
         return u, done, st, goal, target, dist
 
+    def on_map(xy_odom, odom_pose, pose):
+        """[N] odometry-frame points that lie in the flat's free space (the map filter of
+        `sense`, for the estimator's candidates)."""
+        zs = geometry.from_frame(pose, geometry.to_frame(odom_pose, xy_odom))
+        half = 0.5 * jnp.asarray(flat.SIZE, dtype)
+        inside = jnp.all(jnp.abs(zs) < half, -1)
+        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0))
+        return inside & jnp.isfinite(static[cell[:, 0], cell[:, 1]])
+
     def approach_behaviour(s: State, key, sensed, ppl, params, pose):
+        if config.map_filter_estimator:
+            sensed = sensed._replace(
+                laser_mask=sensed.laser_mask & on_map(sensed.laser_xy, sensed.odom_pose, pose),
+                rgbd_mask=sensed.rgbd_mask & on_map(sensed.rgbd_xy, sensed.odom_pose, pose))
         est_state, e = estimator.update(key, s.estimator, sensed, params.estimator)
         if config.perception == "truth":
             # the true person, in the odometry frame: the controller's floor
@@ -548,6 +597,13 @@ def make_rollout(config: ServiceConfig):
                            user_heading=wrap(ppl.heading[0] + turn))
         p = e.user
         heading = e.user_heading
+        person_heading = s.person_heading
+        if config.heading_filter == "windowed" and config.perception != "truth":
+            # the person's heading from their displacement over the window (odometry frame;
+            # at the start: facing the robot, as seed 002 assumes of a person it finds)
+            person_heading = heading_filter.windowed_heading_step(
+                s.person_heading, p[:2], dt, heading_params, config.heading_min_distance)
+            heading = person_heading.heading
         if config.interest is None:
             feats = person_interest.encounter_features(
                 geometry.to_frame(sensed.odom_pose, p[:2]),
@@ -557,10 +613,19 @@ def make_rollout(config: ServiceConfig):
         else:
             pi = s.interest
         person = jnp.append(p[:2], heading)
+        # the person's velocity is fed forward: the field moves with them, and a step
+        # would otherwise leave the robot behind until the gradient caught up
         u = potential_field.approach_velocity(params.field, sensed.odom_pose, person, pi,
+                                              p[2:] if config.feed_forward else None,
                                               gain=params.approach_gain, v_max=config.v_max,
                                               omega_max=config.omega_max)
-        return est_state, e, pi, u
+        camera = s.pan
+        if config.pan is not None:
+            # the RGB-D camera on its pan unit keeps the person in view while the unicycle
+            # goes round them (seed 002's omnidirectional Robotino could face them instead)
+            rel = geometry.to_frame(sensed.odom_pose, p[:2])
+            camera = pan_tilt.servo(config.pan, s.pan, jnp.arctan2(rel[1], rel[0]), dt)
+        return est_state, e._replace(user_heading=heading), pi, u, (person_heading, camera)
 
     def frame(s: State, key, setup, params, full=False):
         ks = jax.random.split(key, 7)
@@ -569,7 +634,8 @@ def make_rollout(config: ServiceConfig):
         K = _TRACKER.capacity
         if approach:
             tracks, extra = s.tracks, s.extra_tracks
-            est_state, e, pi, u = approach_behaviour(s, ks[5], sensed, ppl, params, pose)
+            est_state, e, pi, u, (person_heading, camera) = approach_behaviour(
+                s, ks[5], sensed, ppl, params, pose)
             dist = s.dist
             est_world = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose,
                                                                      e.user[:2]))
@@ -583,7 +649,8 @@ def make_rollout(config: ServiceConfig):
             hyp_ids = jnp.full((1, K), -1, jnp.int32).at[0, 0].set(0)
             hyp_mask = jnp.zeros((1, K), bool).at[0, 0].set(True)
         else:
-            est_state, pi = s.estimator, s.interest
+            est_state, pi, person_heading = s.estimator, s.interest, s.person_heading
+            camera = s.pan
             tracks = track(s.tracks, dets, groups[0], params)
             extra = tuple(track(t, dets, gr, params) for t, gr in zip(s.extra_tracks, groups[1:]))
             u, done, st, goal, target, dist = navigate(s, pose, tracks, ppl, setup, params, full)
@@ -596,7 +663,8 @@ def make_rollout(config: ServiceConfig):
         # the robot looks before it goes: its tracks confirm in the first frames
         u = jnp.where(s.t < settle_frames, 0.0, u)
         new = State(data, ppl, pose, u, sensing_state, odom, tracks, extra, est_state, pi, done,
-                    dist, s.t + 1, jnp.where(st.mask, st.heading, 0.0).astype(dtype), tracks.id)
+                    dist, s.t + 1, jnp.where(st.mask, st.heading, 0.0).astype(dtype), tracks.id,
+                    person_heading, camera)
         rec = Frame(pose, u, done, ppl.pos, ppl.heading, ppl.mask, ppl.role, hyp_pos, hyp_ids,
                     hyp_mask, jnp.where(st.mask, st.status, -1), st.heading, goal, target, pi)
         return new, rec
@@ -696,6 +764,10 @@ def summarize(config: ServiceConfig, f: Frame) -> dict:
     settled = (jnp.arange(T) * dt >= config.settle) & jnp.isfinite(heading_error)
     heading_error = jnp.sum(jnp.where(settled, heading_error, 0.0)) / jnp.maximum(
         jnp.sum(settled), 1)
+    # the task person's position estimate: lost when more than 1 m off after the settling time
+    position_error = geometry.safe_norm(f.target_est[:, :2] - f.people[:, 0])
+    seen = (jnp.arange(T) * dt >= config.settle) & jnp.isfinite(position_error)
+    person_lost = jnp.any(seen & (position_error > 1.0))
     if exp == "approach":
         # seed 002's pose for the interest, reached (time to goal) and held at the end
         rel_t = geometry.rotate(-f.people_heading[:, 0], f.robot[:, :2] - f.people[:, 0])
@@ -723,7 +795,8 @@ def summarize(config: ServiceConfig, f: Frame) -> dict:
                final_distance=final_distance, final_angle=final_angle, facing=facing,
                mota=mot[0].mota, motp=mot[0].motp, interest=f.interest[-1],
                heading_error=jnp.where(exp in ("approach", "handover"), heading_error,
-                                       jnp.nan))
+                                       jnp.nan),
+               person_lost=jnp.where(exp in ("approach", "handover"), person_lost, False))
     if G > 1:
         out.update(mota_ceiling=mot[1].mota, mota_robot=mot[2].mota, motp_ceiling=mot[1].motp,
                    motp_robot=mot[2].motp)

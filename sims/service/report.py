@@ -27,15 +27,17 @@ _ROWS = (("success", "success", "pct"),
          ("final_distance", "final distance to the person [m]", "{:.2f}"),
          ("final_angle", "final bearing from the person's heading [deg]", "deg"),
          ("heading_error", "person's heading error [deg]", "deg"),
+         ("person_lost", "person's estimate lost (> 1 m off)", "pct"),
          ("mota", "MOTA (behaviour's tracker)", "pct"),
          ("motp", "MOTP [m]", "{:.3f}"),
          ("mota_ceiling", "MOTA, ceiling cameras only", "pct"),
          ("mota_robot", "MOTA, robot only (RGB-D + laser)", "pct"))
 
+_PERSON = {"final_distance", "final_angle", "heading_error", "person_lost"}
 _RELEVANT = {
-    "avoid": {"right_pass", "tv_crossing", "final_distance", "final_angle", "heading_error"},
-    "overtake": {"tv_crossing", "final_distance", "final_angle", "heading_error"},
-    "tv": {"right_pass", "final_distance", "final_angle", "heading_error"},
+    "avoid": {"right_pass", "tv_crossing"} | _PERSON,
+    "overtake": {"tv_crossing"} | _PERSON,
+    "tv": {"right_pass"} | _PERSON,
     "handover": {"right_pass", "tv_crossing"},
     "approach": {"right_pass", "tv_crossing", "time_to_goal", "mota", "motp", "rule"},
 }
@@ -87,12 +89,15 @@ def paired_difference(a, b, z: float = 1.96):
 
 
 @functools.lru_cache(maxsize=16)
-def _episode(experiment, perception, compare_sensors, interest, duration):
+def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
+             pan=False):
+    from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
 
     cfg = ep.ServiceConfig(_scene(), experiment=experiment, perception=perception,
                            compare_sensors=compare_sensors, interest=interest,
-                           duration=duration)
+                           duration=duration, heading_filter=heading_filter,
+                           pan=pan_tilt.PanTiltConfig() if pan else None)
     return cfg, ep.make_episode(cfg)
 
 
@@ -107,7 +112,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 perception: str = "all", compare_sensors: bool = False,
                 interest: float | None = 0.5, out: Path | None = None, seed: int = 0,
                 batch_size: int | None = None, animate: bool = False, progress: bool = True,
-                stream=sys.stdout) -> dict:
+                stream=sys.stdout, heading_filter: str = "ar", pan: bool = False) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -121,14 +126,16 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     from sims.service import episode as ep
 
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
-                               None if interest is None else float(interest), float(duration))
+                               None if interest is None else float(interest), float(duration),
+                               heading_filter, pan)
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
                                          progress)
     pi = "estimated" if interest is None else f"{float(interest):g}"
     title = (f"service robot, experiment {experiment}: {episodes} episodes x {duration:.0f} s, "
-             f"perception {perception}" + (f", person interest {pi}"
+             f"perception {perception}" + (f", person interest {pi}, heading filter "
+                                           f"{heading_filter}" + (", pan unit" if pan else "")
                                            if experiment == "approach" else ""))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)

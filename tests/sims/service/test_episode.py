@@ -111,6 +111,23 @@ def test_tv_crossing_and_intimate_intrusion_are_detected(scene):
     np.testing.assert_allclose(float(m_close["intimate_time"][0]), T * 0.1, rtol=1e-5)
 
 
+def test_the_task_persons_estimate_is_called_lost_beyond_one_metre(scene):
+    T = 30
+    person = np.zeros((T, 1, 2))
+    robot = np.tile([2.0, 0.0, np.pi], (T, 1))
+    cfg = ep.ServiceConfig(scene, experiment="approach", interest=0.5)
+    frame = _frame(robot, person, np.zeros((T, 1)), np.full((T, 1), pm.WAITER))
+    for jump, lost in ((0.9, False), (1.2, True)):
+        est = np.zeros((T, 3), np.float32)
+        est[20, 0] = jump                                      # one frame off, after settling
+        m = ep.summarize(cfg, frame._replace(target_est=jnp.asarray(est)))
+        assert bool(m["person_lost"]) == lost
+    early = np.zeros((T, 3), np.float32)
+    early[5, 0] = 3.0                                          # within the first second: ignored
+    assert not bool(ep.summarize(cfg, frame._replace(target_est=jnp.asarray(early)))
+                    ["person_lost"])
+
+
 def test_static_layer_blocks_walls_and_keeps_doors_and_corridor_free(scene):
     cfg = ep.ServiceConfig(scene)
     c = ep.static_cost(cfg)
@@ -148,6 +165,8 @@ def test_bad_configurations_are_refused(scene):
                       (dict(perception="radar"), "perception"),
                       (dict(interest=1.5), "interest"),
                       (dict(duration=math.nan), "duration"),
-                      (dict(cell=0.01), "cell")):
+                      (dict(cell=0.01), "cell"),
+                      (dict(heading_filter="kalman"), "heading_filter"),
+                      (dict(heading_window=0.0), "heading_window")):
         with pytest.raises(ValueError, match=match):
             ep.ServiceConfig(scene, **kw)
