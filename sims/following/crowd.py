@@ -146,6 +146,12 @@ class Pipeline:
     oracle: bool = False
     oracle_noise: float = 0.0
 
+    def __post_init__(self):
+        if self.oracle and self.appearance:
+            raise ValueError("an oracle pipeline has no colour histograms: set appearance=False")
+        if not (math.isfinite(self.oracle_noise) and self.oracle_noise >= 0):
+            raise ValueError(f"oracle_noise must be >= 0; got {self.oracle_noise}")
+
     def detector(self) -> rgbd_people.RGBDPeopleConfig:
         return rgbd_people.RGBDPeopleConfig(heads=HeadConfig(subcluster=self.subcluster))
 
@@ -408,6 +414,7 @@ def frames(key: Array, cfg: CrowdConfig, pipeline: Pipeline, svm: hog.LinearSVM 
                                  * _expected_pixels(cam, along, people.stature))
         # Estimate (world frame: the robot's odometry is perfect).
         if pipeline.oracle:
+            # (k_det's other use, the detector's RANSAC, feeds nothing the oracle returns)
             noise = pipeline.oracle_noise * jax.random.normal(k_det, crowd.pos.shape, dtype)
             world = (crowd.pos + noise).astype(dtype)
             kept = visible

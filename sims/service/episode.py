@@ -37,7 +37,7 @@ from a person's centre to the robot's body, its 0.3 m disc), and the rule violat
 final pose relative to the person and ``heading_error``, the mean absolute error of the
 estimated heading of the task's person after the first ``settle`` seconds, and
 ``person_lost``, that person's position estimate was more than 1 m off at some frame after
-them. The multi-target tracker's CLEAR MOT and position RMSE are
+those first seconds. The multi-target tracker's CLEAR MOT and position RMSE are
 scored against every present person.
 """
 
@@ -416,6 +416,12 @@ def make_rollout(config: ServiceConfig):
                                 ppl.pos[0], window),
                             pan_tilt.init(dtype))
 
+    def in_free_space(zs):
+        """[N] map-frame points inside the flat and off its walls and furniture."""
+        inside = jnp.all(jnp.abs(zs) < 0.5 * jnp.asarray(flat.SIZE, dtype), -1)
+        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0))
+        return inside & jnp.isfinite(static[cell[:, 0], cell[:, 1]])
+
     def world_step(key, s: State):
         ppl = people_mod.step(key, s.people, s.robot, dt)
         data = scene_mod.robot_step(sc, s.data, s.u, max(1, round(dt / sc.dt)))
@@ -452,11 +458,7 @@ def make_rollout(config: ServiceConfig):
         ok = jnp.concatenate([okc.reshape(-1), obs.rgbd.mask, sensed.laser_mask])
         # the map: a detection outside the flat or inside a wall or furniture is none (the
         # RGB-D detector's false positives fall anywhere in its field of view, through walls)
-        half = 0.5 * jnp.asarray(flat.SIZE, dtype)
-        inside = jnp.all(jnp.abs(zs) < half, -1)
-        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0))
-        free = jnp.isfinite(static[cell[:, 0], cell[:, 1]])
-        ok = ok & inside & free & jnp.all(jnp.isfinite(zs), -1)
+        ok = ok & in_free_space(zs) & jnp.all(jnp.isfinite(zs), -1)
         sensor = jnp.concatenate([jnp.full(okc.size, _CEILING), jnp.full(rgbd_xy.shape[0], _RGBD),
                                   jnp.full(sensed.laser_mask.shape[0], _LASER)]).astype(jnp.int32)
         return (zs, ok, sensor), sensing_state, sensed, odom
@@ -577,11 +579,7 @@ def make_rollout(config: ServiceConfig):
     def on_map(xy_odom, odom_pose, pose):
         """[N] odometry-frame points that lie in the flat's free space (the map filter of
         `sense`, for the estimator's candidates)."""
-        zs = geometry.from_frame(pose, geometry.to_frame(odom_pose, xy_odom))
-        half = 0.5 * jnp.asarray(flat.SIZE, dtype)
-        inside = jnp.all(jnp.abs(zs) < half, -1)
-        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0))
-        return inside & jnp.isfinite(static[cell[:, 0], cell[:, 1]])
+        return in_free_space(geometry.from_frame(pose, geometry.to_frame(odom_pose, xy_odom)))
 
     def approach_behaviour(s: State, key, sensed, ppl, params, pose):
         if config.map_filter_estimator:

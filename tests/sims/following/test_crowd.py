@@ -132,3 +132,7 @@ def test_bad_config_is_refused():
         crowd.CrowdConfig(scenario="stairs")
     with pytest.raises(ValueError, match="min_people"):
         crowd.CrowdConfig(min_people=0)
+    with pytest.raises(ValueError, match="appearance"):
+        crowd.Pipeline(oracle=True)
+    with pytest.raises(ValueError, match="oracle_noise"):
+        crowd.Pipeline(oracle=True, appearance=False, oracle_noise=-0.1)
