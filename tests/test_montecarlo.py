@@ -97,8 +97,9 @@ def test_same_results_on_one_and_four_devices():
             np.testing.assert_array_equal(one.metrics[k], four.metrics[k])
         print("OK", float(np.abs(one.metrics["final"] - four.metrics["final"]).max()))
     """) % str(Path(__file__).parent)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4",
-               JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu",
+               XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} "
+                         "--xla_force_host_platform_device_count=4")
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.startswith("OK 0.0")

@@ -1,7 +1,10 @@
 """The notebooks in ``notebooks/``: their shape (question first, parameters cell, answer last)
-and a full execution at reduced size (``JAXTRACK_NOTEBOOK_SMALL=1``) in a fresh kernel."""
+and a full execution at reduced size (``JAXTRACK_NOTEBOOK_SMALL=1``) in a fresh kernel, section
+by section."""
 
+import contextlib
 import os
+import re
 from pathlib import Path
 
 import nbclient
@@ -37,18 +40,83 @@ def test_notebook_states_question_first_and_answer_last(path):
         f"{path.name}: the last cell must give the answer"
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=_ids(NOTEBOOKS))
-def test_notebook_executes_at_reduced_size(path, monkeypatch):
-    # The kernel inherits this process's environment (and interpreter: ipykernel's own
-    # "python3" kernel spec), so the notebook runs small and against this checkout.
-    monkeypatch.setenv("JAXTRACK_NOTEBOOK_SMALL", "1")
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    monkeypatch.setenv("XLA_FLAGS", os.environ.get(
-        "XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false"))
+def _sections(path):
+    """The notebook's sections with code: ``[(title, [cell indices])]``, split at its ``## ``
+    and ``### `` headings (the cells before the first go with the first section)."""
     nb = nbformat.read(path, as_version=4)
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
-                                     resources={"metadata": {"path": str(path.parent)}})
-    client.execute()   # raises CellExecutionError, naming the cell, when a cell raises
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
-              if o.get("output_type") == "error"]
-    assert not errors
+    sections = []
+    for i, cell in enumerate(nb.cells):
+        if cell.cell_type == "markdown" and cell.source.startswith(("## ", "### ")):
+            sections.append((cell.source.splitlines()[0].lstrip("#").strip(), []))
+        elif cell.cell_type == "code":
+            if not sections:
+                sections.append(("", []))
+            sections[-1][1].append(i)
+    merged = []
+    for title, cells in sections:
+        if merged and (not merged[-1][0] or not merged[-1][1]):
+            merged[-1] = (merged[-1][0] or title, merged[-1][1] + cells)
+        else:
+            merged.append((title, cells))
+    return [(t, c) for t, c in merged if c]
+
+
+SECTIONS = [(path, k) for path in NOTEBOOKS for k in range(len(_sections(path)))]
+
+
+def _slug(title):
+    return re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")[:30]
+
+
+class _Kernel:
+    """One notebook's kernel, kept across its section tests; the next notebook's first
+    section shuts it down. A section's test runs any earlier section not yet run (when run
+    alone), then its own cells."""
+
+    def __init__(self):
+        self.path = None
+
+    def run(self, path, section):
+        if path != self.path:
+            self.close()
+            # The kernel inherits this environment (and interpreter: ipykernel's own
+            # "python3" kernel spec), so the notebook runs small and against this checkout.
+            env = dict(os.environ, JAXTRACK_NOTEBOOK_SMALL="1", MPLBACKEND="Agg",
+                       XLA_FLAGS=os.environ.get("XLA_FLAGS",
+                                                "--xla_cpu_multi_thread_eigen=false"))
+            self.nb = nbformat.read(path, as_version=4)
+            self.client = nbclient.NotebookClient(
+                self.nb, timeout=600, kernel_name="python3",
+                resources={"metadata": {"path": str(path.parent)}})
+            self.stack = contextlib.ExitStack()
+            self.stack.enter_context(self.client.setup_kernel(env=env))
+            self.path, self.done = path, 0
+        sections = _sections(path)
+        for _, cells in sections[self.done:section + 1]:
+            for i in cells:
+                # raises CellExecutionError, naming the cell, when a cell raises
+                self.client.execute_cell(self.nb.cells[i], i)
+        self.done = max(self.done, section + 1)
+        return [o for i in sections[section][1] for o in self.nb.cells[i].get("outputs", [])
+                if o.get("output_type") == "error"]
+
+    def close(self):
+        if self.path is not None:
+            self.stack.close()
+            self.path = None
+
+
+@pytest.fixture(scope="module")
+def kernel():
+    k = _Kernel()
+    yield k
+    k.close()
+
+
+@pytest.mark.parametrize(
+    "path, section", SECTIONS,
+    ids=[f"{p.stem}-{k}-{_slug(_sections(p)[k][0])}" for p, k in SECTIONS])
+def test_notebook_section_executes_at_reduced_size(kernel, path, section):
+    """Each notebook runs in a fresh kernel at reduced size (``JAXTRACK_NOTEBOOK_SMALL=1``),
+    one test per section, in order."""
+    assert not kernel.run(path, section)

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -17,12 +19,17 @@ def test_import_jaxtrack_does_not_import_mujoco():
     assert out.returncode == 0, out.stdout + out.stderr
 
 
-def test_readme_usage_example_runs():
-    text = (ROOT / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
-    assert blocks, "README has no python example"
-    for block in blocks:
-        exec(compile(block, "README.md", "exec"), {})
+README_EXAMPLES = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+
+
+def test_readme_has_python_examples():
+    assert README_EXAMPLES, "README has no python example"
+
+
+@pytest.mark.parametrize("block", README_EXAMPLES,
+                         ids=[f"example{i}" for i in range(len(README_EXAMPLES))])
+def test_readme_usage_example_runs(block):
+    exec(compile(block, "README.md", "exec"), {})
 
 
 def test_readme_quickstart_has_exactly_two_commands_and_ci_runs_the_second():

@@ -156,10 +156,15 @@ def draw_floor(ax, sc) -> None:
     ax.set_ylim(-H / 2 - 0.2, H / 2 + 0.2)
 
 
-def write_plots(out: Path, cfg, params, key, num: int = 1, animate: bool = False) -> None:
+def write_plots(out: Path, cfg, params, key, num: int = 1, animate: bool = False,
+                frames=None) -> None:
     """Top view of the first episode (with the camera's pan direction every second), following
     error over time with the lost intervals shaded, MOT timeline; with ``animate``, an
-    animated top view (``episode.gif``)."""
+    animated top view (``episode.gif``).
+
+    ``frames``: that episode's `episode.Frame` record ([T, ...] leaves), when it was already
+    run; by default it is run here, from the first of ``jax.random.split(key, 1)``.
+    """
     import jax
     import matplotlib.pyplot as plt
 
@@ -168,7 +173,8 @@ def write_plots(out: Path, cfg, params, key, num: int = 1, animate: bool = False
     from sims.following import episode as ep
 
     out.mkdir(parents=True, exist_ok=True)
-    frames = jax.jit(ep.make_rollout(cfg))(jax.random.split(key, 1)[0], params)
+    if frames is None:
+        frames = jax.jit(ep.make_rollout(cfg))(jax.random.split(key, 1)[0], params)
     f = jax.tree_util.tree_map(lambda x: None if x is None else np.asarray(x), frames)
     t = np.arange(f.robot.shape[0]) * cfg.control_dt
     name = user.build(cfg.estimator).name

@@ -488,21 +488,31 @@ def make_rollout(config: ServiceConfig):
             cams, jnp.asarray(rooms, dtype), z)))(robot)
         return jnp.concatenate([jnp.zeros(zs.shape[0] - robot.shape[0], bool), seen])
 
-    def track(tracks, dets, group, params):
-        """One tracker step on ``group``'s detections. With the ceiling cameras in the group,
-        a robot detection a camera would see (`covered`) gets confidence 1/2, under the
-        tracker's birth threshold: it updates the tracks but starts none (were a person there,
-        the camera would have started their track; the robot's noisier, clutter-prone
-        detections there only made false tracks). Where the cameras cannot see, behind
-        tracked people or out of their view, the robot's detections start tracks."""
+    def track(tracks, dets, in_group, with_ceiling, params):
+        """One tracker step on the detections of the sensors ``in_group`` ([3] bool, by sensor
+        code). With the ceiling cameras in the group (``with_ceiling``), a robot detection a
+        camera would see (`covered`) gets confidence 1/2, under the tracker's birth
+        threshold: it updates the tracks but starts none (were a person there, the camera
+        would have started their track; the robot's noisier, clutter-prone detections there
+        only made false tracks). Where the cameras cannot see, behind tracked people or out
+        of their view, the robot's detections start tracks."""
         zs, ok, sensor = dets
-        keep = ok & jnp.isin(sensor, jnp.asarray(_SENSOR_GROUPS[group]))
-        confidence = jnp.ones(zs.shape[0], dtype)
-        if _CEILING in _SENSOR_GROUPS[group]:
-            confidence = jnp.where(covered(zs, sensor, tracks), 0.5, 1.0).astype(dtype)
-        det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor, confidence,
-                                 jnp.zeros((zs.shape[0], 0), dtype))
+        keep = ok & in_group[sensor]
+        confidence = jnp.where(with_ceiling & covered(zs, sensor, tracks), 0.5, 1.0)
+        det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor,
+                                 confidence.astype(dtype), jnp.zeros((zs.shape[0], 0), dtype))
         return tracker.step(tracks, det, params.tracker)
+
+    # the behaviour's tracker and the comparison ones differ only in the detections they
+    # keep: one tracker step, vmapped over the groups (one trace and compile, not one each)
+    group_sensors = jnp.asarray([[k in _SENSOR_GROUPS[gr] for k in range(3)] for gr in groups])
+    group_ceiling = jnp.asarray([_CEILING in _SENSOR_GROUPS[gr] for gr in groups])
+
+    def track_groups(all_tracks, dets, params):
+        stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *all_tracks)
+        new = jax.vmap(track, (0, None, 0, 0, None))(stacked, dets, group_sensors,
+                                                     group_ceiling, params)
+        return tuple(jax.tree_util.tree_map(lambda x: x[i], new) for i in range(len(groups)))
 
     def people_estimate(tracks, ppl):
         """(xy [K, 2], velocity [K, 2], previous heading [K], present [K]) of the behaviour's
@@ -515,7 +525,7 @@ def make_rollout(config: ServiceConfig):
         confirmed = tracks.status == tracker.CONFIRMED
         return tracks.mean[:, :2], tracks.mean[:, 2:], tracks.heading, confirmed
 
-    def navigate(s: State, pose, tracks, ppl, setup, params, full: bool):
+    def navigate(s: State, pose, tracks, ppl, setup, params, full):
         xy, vel, prev_heading, present = people_estimate(tracks, ppl)
         cov = None
         if config.perception != "truth":
@@ -552,11 +562,14 @@ def make_rollout(config: ServiceConfig):
         plan_cost = jnp.where(cost >= costmap.LETHAL, _LETHAL_PENALTY, cost)
         goal_cell = grid_planner.cell_of(pg, goal)
         goal_cell = jnp.clip(goal_cell, 0, jnp.asarray(g.shape) - 1)
-        if full:
-            dist = grid_planner.distance_field(plan_cost, goal_cell, cell=config.cell)
-        else:
-            dist = grid_planner.refine(s.dist, plan_cost, goal_cell, config.sweeps,
-                                       cell=config.cell)
+        # a full solve on the first frame of each replanning block, refined rounds on the
+        # others; ``full`` is the same in every episode (it comes from the frame index, not
+        # the episode), so under vmap this stays a branch and only one side runs
+        dist = jax.lax.cond(
+            full,
+            lambda: grid_planner.distance_field(plan_cost, goal_cell, cell=config.cell),
+            lambda: grid_planner.refine(s.dist, plan_cost, goal_cell, config.sweeps,
+                                        cell=config.cell))
         start = jnp.clip(grid_planner.cell_of(pg, pose[:2]), 0, jnp.asarray(g.shape) - 1)
         path = grid_planner.extract_path(dist, start, 48, cost=plan_cost, cell=config.cell)
         aim = grid_planner.lookahead_point(pg, path.cells, path.valid, pose[:2],
@@ -625,7 +638,7 @@ def make_rollout(config: ServiceConfig):
             camera = pan_tilt.servo(config.pan, s.pan, jnp.arctan2(rel[1], rel[0]), dt)
         return est_state, e._replace(user_heading=heading), pi, u, (person_heading, camera)
 
-    def frame(s: State, key, setup, params, full=False):
+    def frame(s: State, key, setup, params, full):
         ks = jax.random.split(key, 7)
         ppl, data, pose = world_step(ks[0], s)
         dets, sensing_state, sensed, odom = sense(ks[1:5], s, ppl, pose)
@@ -649,8 +662,8 @@ def make_rollout(config: ServiceConfig):
         else:
             est_state, pi, person_heading = s.estimator, s.interest, s.person_heading
             camera = s.pan
-            tracks = track(s.tracks, dets, groups[0], params)
-            extra = tuple(track(t, dets, gr, params) for t, gr in zip(s.extra_tracks, groups[1:]))
+            tracks, *extra = track_groups((s.tracks,) + s.extra_tracks, dets, params)
+            extra = tuple(extra)
             u, done, st, goal, target, dist = navigate(s, pose, tracks, ppl, setup, params, full)
             all_tracks = (tracks,) + extra
             hyp_pos = jnp.stack([t.mean[:, :2] for t in all_tracks])
@@ -671,21 +684,18 @@ def make_rollout(config: ServiceConfig):
         k_reset, k_run = jax.random.split(key)
         setup, state = reset(k_reset, params)
         # blocks of `replan_every` frames: a full solve at the first frame of each, refined
-        # rounds at the others (a static structure: no branch on traced values)
+        # rounds at the others; the frame is traced once, with the block's start as an input
         n = config.replan_every
-        blocks = -(-config.num_frames // n)
-        keys = jax.random.split(k_run, blocks * n)
-        keys = keys.reshape((blocks, n) + keys.shape[1:])
+        T = config.num_frames
+        keys = jax.random.split(k_run, -(-T // n) * n)[:T]
+        full = jnp.asarray(np.arange(T) % n == 0)
 
-        def block(s, ks):
-            s, first = frame(s, ks[0], setup, params, full=True)
-            s, rest = jax.lax.scan(lambda s_, k: frame(s_, k, setup, params), s, ks[1:])
-            return s, jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]),
-                                             first, rest)
+        def step(s, inputs):
+            k, first = inputs
+            return frame(s, k, setup, params, first)
 
-        _, frames = jax.lax.scan(block, state, keys)
-        return jax.tree_util.tree_map(
-            lambda x: x.reshape((blocks * n,) + x.shape[2:])[:config.num_frames], frames)
+        _, frames = jax.lax.scan(step, state, (keys, full))
+        return frames
 
     return rollout
 

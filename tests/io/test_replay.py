@@ -282,14 +282,11 @@ def test_track_and_evaluate_run_where_mujoco_cannot_be_imported(recording, writt
     assert (out / "tracks.csv").stat().st_size > 0
 
 
-def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(tmp_path):
-    # A recording with the RGB-D camera on the pan unit, the robot not turning, so that the
-    # camera has to turn to keep the user (their bearing sweeps 1.5 rad in 2 s): its angle is
-    # recorded (within the unit's limits, on the user's bearing), written into the bag as
-    # sensor_msgs/JointState,
-    # read back exactly, and the replayed PF's camera field of view turns with it: the output
-    # with the pan differs from the one with the camera assumed straight ahead, and equals the
-    # in-memory replay.
+@pytest.fixture(scope="module")
+def pan_recording(tmp_path_factory):
+    """A recording with the RGB-D camera on the pan unit, the robot not turning, so that the
+    camera has to turn to keep the user (their bearing sweeps 1.5 rad in 2 s), written into a
+    bag with the pan angle as sensor_msgs/JointState: ``(unit, rec, records, joints, bag)``."""
     from jaxtrack.control import pan_tilt
     from sims.following import recording as rec_mod
     from sims.following import scene
@@ -297,28 +294,42 @@ def test_the_pan_angle_goes_into_the_bag_as_a_joint_state_and_turns_the_camera(t
     unit = pan_tilt.PanTiltConfig()
     rec = rec_mod.record(jax.random.PRNGKey(0), scene.build(num_people=3), distractors=2,
                          duration=2.0, pan=unit, max_turn=0.0)
+    laser, odom, det = rec_mod.to_records(rec)
+    joints = rec_mod.pan_record(rec)
+    path = tmp_path_factory.mktemp("pan") / "pan.bag"
+    bags.write_bag(path, 1, laser=laser, odometry=odom, detections=det, joints=joints)
+    return unit, rec, (laser, odom, det), joints, path
+
+
+def test_the_pan_angle_is_recorded_on_the_users_bearing_and_read_back_exactly(pan_recording):
+    from sims.following import recording as rec_mod
+
+    unit, rec, _, _, path = pan_recording
     assert rec.pan.shape == (20,) and np.all(np.abs(rec.pan) <= unit.limit)
     rel = jax.vmap(geometry.to_frame)(jnp.asarray(rec.robot), jnp.asarray(rec.people[:, 0]))
     bearing = np.arctan2(rel[:, 1], rel[:, 0])
     assert np.ptp(rec.pan) > 1.0
     # The servo lags by about its rate over its gain (here < 0.3 rad).
     assert np.max(np.abs(rec.pan - bearing)) < 0.3
-    laser, odom, det = rec_mod.to_records(rec)
-    joints = rec_mod.pan_record(rec)
-    path = tmp_path / "pan.bag"
-    bags.write_bag(path, 1, laser=laser, odometry=odom, detections=det, joints=joints)
     back = bags.read_joint_states(path, "/joint_states")
     np.testing.assert_array_equal(back.position[:, 0], rec.pan)
+    with pytest.raises(ValueError, match="no pan angle"):
+        rec_mod.pan_record(rec._replace(pan=None))
+
+
+def test_the_replayed_pf_turns_its_camera_with_the_recorded_pan(pan_recording):
+    # The replayed PF's camera field of view turns with the pan: the output from the bag's
+    # angles equals the in-memory replay's, and differs from the camera held straight ahead.
+    _, _, (laser, odom, det), joints, path = pan_recording
+    back = bags.read_joint_states(path, "/joint_states")
     kw = dict(progress=False, detector=DETECTOR, chunk=CHUNK)
     with_pan = replay.track(laser, odom, det, "pf", pan=joints, **kw)
     again = replay.track(laser, odom, det, "pf", pan=back, **kw)
-    ahead = replay.track(laser, odom, det, "pf", **kw)
     np.testing.assert_array_equal(with_pan.user, again.user)
-    assert not np.array_equal(with_pan.user, ahead.user)
     with pytest.raises(ValueError, match="no joint"):
         replay.track(laser, odom, det, "pf", pan=joints, pan_joint="tilt", **kw)
-    with pytest.raises(ValueError, match="no pan angle"):
-        rec_mod.pan_record(rec._replace(pan=None))
+    ahead = replay.track(laser, odom, det, "pf", **kw)
+    assert not np.array_equal(with_pan.user, ahead.user)
 
 
 def test_a_batch_of_recordings_equals_each_replayed_alone(recording):

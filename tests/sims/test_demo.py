@@ -38,27 +38,58 @@ def test_demo_filters_prints_the_filter_table(capsys):
         assert row in out
 
 
-def test_scene_demo_prints_both_tables_with_a_header_each():
-    # Tiny sizes; the person-following part has the shapes of
-    # tests/sims/following/test_episode.py's command test (one compile in the cache).
+_HUMANOID = scene_demo.HumanoidSize(episodes=1, frames=4, resolution=(32, 24), particles=8)
+# the shapes of tests/sims/following/test_episode.py's command test
+_FOLLOWING = scene_demo.FollowingSize(episodes=2, duration=1.0, people=2, estimator="kf",
+                                      batch_size=2)
+
+
+def _demo(which):
     stream = io.StringIO()
-    out = scene_demo.run("all",
-                         scene_demo.HumanoidSize(episodes=1, frames=4, resolution=(32, 24),
-                                                 particles=8),
-                         scene_demo.FollowingSize(episodes=2, duration=1.0, people=2,
-                                                  estimator="kf", batch_size=2),
-                         stream=stream, progress=False)
+    out = scene_demo.run(which, _HUMANOID, _FOLLOWING, stream=stream, progress=False)
     text = stream.getvalue()
-    headers = [line for line in text.splitlines() if line.startswith("== ")]
-    assert len(headers) == 2
+    return out, text, [line for line in text.splitlines() if line.startswith("== ")]
+
+
+def test_scene_demo_humanoid_prints_its_header_and_table():
+    out, text, headers = _demo("humanoid")
+    assert len(headers) == 1
     assert "15 tasks x 1 episodes x 4 frames" in headers[0] and "32x24" in headers[0]
-    assert "2 episodes x 1 s in the shop, kf estimator" in headers[1]
-    assert "P3 +90" in text and "frames to stop" in text          # the humanoid's table
-    assert "following RMS error [m]" in text                        # the following table
-    assert "MOTA" not in text and "IDF1" not in text and "nan" not in text  # kf: one person
-    assert len(out["humanoid"]["metrics"]) == 15
-    assert out["following"]["metrics"]["following_rms"].shape == (2,)
+    assert "P3 +90" in text and "frames to stop" in text
+    assert len(out["humanoid"]["metrics"]) == 15 and "following" not in out
     assert "demo finished in" in text
+
+
+def test_scene_demo_all_runs_both_scenes_with_a_header_each(monkeypatch):
+    # the humanoid scene runs for real above, the person-following one in
+    # tests/sims/following/test_episode.py (the command test, the same sizes); here, the order,
+    # the headers and what reaches each scene
+    import sims.cli
+    import sims.following.report
+
+    calls = []
+
+    def fake(name):
+        def run(*args, stream, **kw):
+            calls.append((name, args, kw))
+            print(f"{name} table", file=stream)
+            return {"metrics": name}
+        return run
+
+    monkeypatch.setattr(sims.cli, "run_humanoid_reach", fake("humanoid"))
+    monkeypatch.setattr(sims.following.report, "run_person_following", fake("following"))
+    out, text, headers = _demo("all")
+    assert [c[0] for c in calls] == ["humanoid", "following"]
+    assert calls[0][1] == (1, "pf") and calls[0][2]["frames"] == 4 \
+        and calls[0][2]["resolution"] == (32, 24) and calls[0][2]["particles"] == 8
+    assert calls[1][1] == (2, "kf", "A", 2) and calls[1][2]["duration"] == 1.0 \
+        and calls[1][2]["batch_size"] == 2 and calls[1][2]["layout"] == "shop"
+    assert "2 episodes x 1 s in the shop, kf estimator" in headers[1]
+    assert len(headers) == 2 and "humanoid reach" in headers[0] \
+        and "person following" in headers[1]
+    lines = text.splitlines()
+    assert lines.index("humanoid table") < lines.index(headers[1])
+    assert out["humanoid"] == {"metrics": "humanoid"} and "seconds" in out
 
 
 def test_scene_demo_rejects_an_unknown_scene():

@@ -35,7 +35,9 @@ def _env(cache, devices=1):
     env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache))
     env.pop("JAX_ENABLE_X64", None)
     if devices > 1:
-        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+        # appended: the other flags (conftest's) stay, so both runs compile alike
+        env["XLA_FLAGS"] = (f"{env.get('XLA_FLAGS', '')} "
+                            f"--xla_force_host_platform_device_count={devices}").strip()
     return env
 
 

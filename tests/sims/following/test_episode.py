@@ -207,17 +207,32 @@ def test_the_shop_scenario_is_followable_with_perfect_perception():
     assert np.all(np.abs(f.pan) <= np.radians(150.0) + 1e-6) and np.abs(f.pan).max() > 0.05
 
 
-def test_command_prints_table_and_writes_plots(tmp_path):
+def test_command_prints_table_and_writes_plots(tmp_path, monkeypatch):
     import io
 
-    from sims.following.report import run_person_following
+    from sims.following import report
 
+    plotted = []
+    monkeypatch.setattr(report, "write_plots", lambda *a, **kw: plotted.append((a, kw)))
     out = io.StringIO()
-    res = run_person_following(episodes=2, estimator="kf", people=2, out=tmp_path,
-                               duration=1.0, batch_size=2, stream=out)
+    res = report.run_person_following(episodes=2, estimator="kf", people=2, out=tmp_path,
+                                      duration=1.0, batch_size=2, stream=out, animate=True)
     text = out.getvalue()
     assert "following RMS error" in text and "user lost" in text
     assert res["metrics"]["following_rms"].shape == (2,)
     assert np.all(np.isfinite(res["metrics"]["following_rms"]))
-    for name in ("top_view.png", "following_error.png", "metrics.npz"):
-        assert (tmp_path / name).stat().st_size > 0
+    assert (tmp_path / "metrics.npz").stat().st_size > 0
+    # the plots: of the run's scenario and key (their drawing: the next test)
+    (where, cfg, params, key), kw = plotted[0]
+    assert where == tmp_path and cfg.duration == 1.0 and kw == {"animate": True}
+    np.testing.assert_array_equal(key, jax.random.PRNGKey(0))
+
+
+def test_plots_of_a_run_are_written(run, tmp_path):
+    from sims.following import report
+
+    cfg, params, f = run
+    first = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], f)
+    report.write_plots(tmp_path, cfg, params, jax.random.PRNGKey(0), frames=first)
+    for name in ("top_view.png", "following_error.png", "mot_timeline.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name

@@ -28,7 +28,7 @@ def tv_run(scene):
     params = ep.make_params(cfg)
     roll = jax.jit(jax.vmap(ep.make_rollout(cfg), (0, None)))
     frames = roll(jax.random.split(jax.random.key(3), 2), params)
-    metrics = jax.vmap(lambda f: ep.summarize(cfg, f))(frames)
+    metrics = jax.jit(jax.vmap(lambda f: ep.summarize(cfg, f)))(frames)
     return cfg, jax.tree_util.tree_map(np.asarray, frames), \
         {k: np.asarray(v) for k, v in metrics.items()}
 
