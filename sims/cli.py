@@ -81,6 +81,11 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--walkers", type=int, default=0,
                        help="people pacing near the robot, occluding it from the camera "
                             "(seed 000 section 5.6)")
+    routes = scenes.add_parser("humanoid-routes", add_help=False,
+                               help="seed 000, Experiment 1: the humanoid walks three routes "
+                                    "open loop, tracked by the depth and the colour particle "
+                                    "filter (options: jaxtrack run humanoid-routes --help)")
+    routes.add_argument("routes_args", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     follow = scenes.add_parser("person-following", help="seeds 001-004: a wheeled robot follows "
                                "its user among other people (laser legs + RGB-D)")
     follow.add_argument("--episodes", type=int, default=256)
@@ -269,7 +274,11 @@ def main(argv: list[str] | None = None) -> int:
                          "threshold from every labelled person are not false positives")
     ev.add_argument("--out", type=Path, default=None,
                     help="directory for summary.csv and summary.json")
-    args = parser.parse_args(argv)
+    # `run humanoid-routes` hands its options to `sims.humanoid.routes.main`, which parses
+    # them (argparse's REMAINDER does not take a first argument that starts with "-")
+    args, extra = parser.parse_known_args(argv)
+    if extra and getattr(args, "scene", None) != "humanoid-routes":
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command == "track" and args.depth_topic:
         return _track_depth(parser, args)
     if args.command == "track":
@@ -356,6 +365,11 @@ def main(argv: list[str] | None = None) -> int:
 
         demo_mod.run(episodes, steps, args.seed)
         return 0
+    if args.scene == "humanoid-routes":
+        _import_mjx_quietly()
+        from sims.humanoid import routes
+
+        return routes.main(extra + args.routes_args, prog="jaxtrack run humanoid-routes")
     if args.scene == "service":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
             parser.error("--episodes and --duration must be positive (and --duration finite)")

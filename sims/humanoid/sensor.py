@@ -55,9 +55,9 @@ from sims.humanoid.scene import Camera, Scene, camera_rays
 
 Array = jax.Array
 
-__all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "render", "background",
-           "window_size", "render_window", "add_noise", "ceiling_camera", "back_project",
-           "window_origin", "remove_floor", "point_cloud", "robot_point_cloud"]
+__all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "geom_distances", "render",
+           "background", "window_size", "render_window", "add_noise", "ceiling_camera",
+           "back_project", "window_origin", "remove_floor", "point_cloud", "robot_point_cloud"]
 
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX = 0, 2, 3, 4, 6
 
@@ -138,6 +138,35 @@ def ray_distances(origin: Array, dirs: Array, geom_types: np.ndarray, sizes: Arr
     Example:
       >>> dist = ray_distances(cam, dirs, types, model.geom_size, xpos, xmat)
     """
+    best = jnp.full(dirs.shape[:1], jnp.inf, dirs.dtype)
+    for _, t in _distances_by_type(origin, dirs, geom_types, sizes, xpos, xmat):
+        best = jnp.minimum(best, jnp.min(t, 0))
+    return best
+
+
+def geom_distances(origin: Array, dirs: Array, geom_types: np.ndarray, sizes: Array,
+                   xpos: Array, xmat: Array) -> Array:
+    """Distance along each ray to each primitive, before the nearest is taken (`ray_distances`
+    is its minimum over the geoms): what a renderer needs to know *which* geom a ray sees.
+
+    Args:
+      origin, dirs, geom_types, sizes, xpos, xmat: as `ray_distances`.
+
+    Returns:
+      [G, R] distances (inf where geom g is not hit by ray r), in the order of ``geom_types``.
+
+    Example:
+      >>> dist = geom_distances(cam, dirs, types, sizes, xpos, xmat)
+      >>> seen = jnp.argmin(dist, 0)          # [R] index of the geom each ray sees
+    """
+    dist = jnp.full((xpos.shape[0], dirs.shape[0]), jnp.inf, dirs.dtype)
+    for idx, t in _distances_by_type(origin, dirs, geom_types, sizes, xpos, xmat):
+        dist = dist.at[idx].set(t)
+    return dist
+
+
+def _distances_by_type(origin, dirs, geom_types, sizes, xpos, xmat):
+    """``(geom indices [n], distances [n, R])`` for each primitive type present (static)."""
     geom_types = np.asarray(geom_types)
     bad = set(geom_types.tolist()) - {_PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX}
     if bad:
@@ -147,16 +176,13 @@ def ray_distances(origin: Array, dirs: Array, geom_types: np.ndarray, sizes: Arr
     pnt = jnp.einsum("gji,gj->gi", xmat, origin[None, :] - xpos)
     pnt = jnp.broadcast_to(pnt[:, None, :], (xpos.shape[0], dirs.shape[0], 3))
     vec = jnp.einsum("gji,rj->gri", xmat, dirs)
-    best = jnp.full(dirs.shape[:1], jnp.inf, dirs.dtype)
+    out = []
     for code, fn in ((_PLANE, _plane), (_SPHERE, _sphere), (_CAPSULE, _capsule),
                      (_ELLIPSOID, _ellipsoid), (_BOX, _box)):
         idx = np.nonzero(geom_types == code)[0]
-        if idx.size == 0:
-            continue
-        size = sizes[idx][:, None, :]
-        t = fn(size, pnt[idx], vec[idx])
-        best = jnp.minimum(best, jnp.min(t, 0))
-    return best
+        if idx.size:
+            out.append((idx, fn(sizes[idx][:, None, :], pnt[idx], vec[idx])))
+    return out
 
 
 def render(scene: Scene, xpos: Array, xmat: Array, geoms=None, dtype=jnp.float32) -> Array:

@@ -89,6 +89,10 @@ def test_table_labels_a_subset_of_tasks_by_the_names_given():
     (["run", "service", "--experiment", "tv", "--batch-size", "0"],
      "--batch-size must be positive"),
     (["run", "service", "--experiment", "dance"], "invalid choice"),
+    (["run", "humanoid-routes", "--episodes", "0"], "--episodes and --particles must be >= 1"),
+    (["run", "humanoid-routes", "--floor", "1,2"], "--floor must be three numbers"),
+    (["run", "humanoid-routes", "--space", "lab"], "invalid choice"),
+    (["run", "humanoid-routes", "--figure", "/proc/x/fig.png"], "cannot be written"),
 ])
 def test_bad_run_arguments_exit_2_with_one_line_before_any_work(argv, message, capsys,
                                                                  monkeypatch):
@@ -107,6 +111,9 @@ def test_bad_run_arguments_exit_2_with_one_line_before_any_work(argv, message, c
 
     monkeypatch.setattr(service_report, "run_service",
                         lambda *a, **k: pytest.fail("ran despite a bad argument"))
+    from sims.humanoid import routes
+
+    monkeypatch.setattr(routes, "run", lambda *a, **k: pytest.fail("ran despite a bad argument"))
     with pytest.raises(SystemExit) as exc:
         cli.main(argv)
     assert exc.value.code == 2
@@ -146,3 +153,11 @@ def test_rgbd_people_passes_its_arguments_and_names_the_ablations(monkeypatch, t
     assert (episodes, scenario, resolution) == (3, "obstacles", (320, 240))
     from sims.following import crowd
     assert names == ("full", "no sub-clustering") and all(n in crowd.ABLATIONS for n in names)
+
+
+def test_humanoid_routes_is_a_run_scene_with_its_own_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["run", "humanoid-routes", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: jaxtrack run humanoid-routes") and "--temperature" in out
