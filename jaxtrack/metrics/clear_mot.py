@@ -232,7 +232,6 @@ class _Memory(NamedTuple):
 def _clear_mot(gt_ids, gt_pos, gt_mask, hyp_ids, hyp_pos, hyp_mask, threshold, convention,
                num_ids, distance="euclidean"):
     T, G = gt_ids.shape
-    H = hyp_ids.shape[1]
     dtype = jnp.result_type(gt_pos, hyp_pos, float)
     gt_ids = jnp.asarray(gt_ids)
     hyp_ids = jnp.asarray(hyp_ids)

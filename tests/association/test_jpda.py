@@ -445,16 +445,16 @@ def test_gradients_are_finite_and_match_finite_differences():
     for i in range(2):
         gL, gpd = values_and_grads(jnp.asarray(L), 0.85)[i][1]
 
-        def loss(L, pd):
+        def value(L, pd):
             return values_and_grads(L, pd)[i][0]
 
         assert np.all(np.isfinite(np.asarray(gL))) and np.isfinite(float(gpd))
         eps = 1e-6
         E = np.zeros_like(L)
         E[0, 0] = eps
-        fd = (loss(L + E, 0.85) - loss(L - E, 0.85)) / (2 * eps)
+        fd = (value(L + E, 0.85) - value(L - E, 0.85)) / (2 * eps)
         np.testing.assert_allclose(float(gL[0, 0]), float(fd), rtol=1e-5)
-        fd_pd = (loss(L, 0.85 + eps) - loss(L, 0.85 - eps)) / (2 * eps)
+        fd_pd = (value(L, 0.85 + eps) - value(L, 0.85 - eps)) / (2 * eps)
         np.testing.assert_allclose(float(gpd), float(fd_pd), rtol=1e-5)
 
 
