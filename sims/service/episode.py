@@ -498,7 +498,9 @@ def make_rollout(config: ServiceConfig):
         of their view, the robot's detections start tracks."""
         zs, ok, sensor = dets
         keep = ok & in_group[sensor]
-        confidence = jnp.where(with_ceiling & covered(zs, sensor, tracks), 0.5, 1.0)
+        confidence = jnp.ones(zs.shape[0], dtype)
+        if any_ceiling:     # static: no group with the cameras computes no coverage
+            confidence = jnp.where(with_ceiling & covered(zs, sensor, tracks), 0.5, 1.0)
         det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor,
                                  confidence.astype(dtype), jnp.zeros((zs.shape[0], 0), dtype))
         return tracker.step(tracks, det, params.tracker)
@@ -507,8 +509,11 @@ def make_rollout(config: ServiceConfig):
     # keep: one tracker step, vmapped over the groups (one trace and compile, not one each)
     group_sensors = jnp.asarray([[k in _SENSOR_GROUPS[gr] for k in range(3)] for gr in groups])
     group_ceiling = jnp.asarray([_CEILING in _SENSOR_GROUPS[gr] for gr in groups])
+    any_ceiling = any(_CEILING in _SENSOR_GROUPS[gr] for gr in groups)
 
     def track_groups(all_tracks, dets, params):
+        if len(groups) == 1:
+            return (track(all_tracks[0], dets, group_sensors[0], group_ceiling[0], params),)
         stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *all_tracks)
         new = jax.vmap(track, (0, None, 0, 0, None))(stacked, dets, group_sensors,
                                                      group_ceiling, params)
