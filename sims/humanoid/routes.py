@@ -287,13 +287,15 @@ def make_episode(config: RoutesConfig):
         def frame(s: _State, xs):
             key, command, stop, first = xs
             k_gait, k_sense, k_d, k_c = jax.random.split(key, 4)
-            g = jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b), s.gait,
-                                       world_step(k_gait, s.gait, command, stop))
+            # ``first`` comes from the frame index, not the episode: under vmap these stay
+            # branches, so the gait step and the colour tracker's initialisation run only on
+            # the frames that use them
+            g = jax.lax.cond(first, lambda: s.gait,
+                             lambda: world_step(k_gait, s.gait, command, stop))
             truth, pts, mask, img = sense(k_sense, g, lighting)
             # Frame 0 is the first image, the robot standing at the start: the colour tracker
             # takes its reference there (the seed's user clicks the start pose on it).
-            c_prev = jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b),
-                                            colour_init(img), s.colour)
+            c_prev = jax.lax.cond(first, lambda: colour_init(img), lambda: s.colour)
             d_state, d_est = depth_est.update(
                 k_d, s.depth, humanoid.DepthScan(pts, mask, command[2]), params.depth)
             c_state, c_est = colour_est.update(
