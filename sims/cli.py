@@ -81,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--walkers", type=int, default=0,
                        help="people pacing near the robot, occluding it from the camera "
                             "(seed 000 section 5.6)")
+    reach.add_argument("--planner", choices=("dcm", "preview-qp"), default="dcm",
+                       help="footstep planner of the walking pattern generator: the deadbeat "
+                            "DCM planner or Herdt et al.'s preview QP")
     routes = scenes.add_parser("humanoid-routes", add_help=False,
                                help="seed 000, Experiment 1: the humanoid walks three routes "
                                     "open loop, tracked by the depth and the colour particle "
@@ -460,7 +463,8 @@ def main(argv: list[str] | None = None) -> int:
                        args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
                        temperature=args.temperature, turn_prediction=args.turn_prediction,
-                       heading_gain=args.heading_gain, walkers=args.walkers)
+                       heading_gain=args.heading_gain, walkers=args.walkers,
+                       planner=args.planner)
     return 0
 
 
@@ -624,14 +628,15 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
                        temperature: float | None = None, turn_prediction: bool = False,
                        heading_gain: float = 0.5, progress: bool = True,
-                       walkers: int = 0) -> dict:
+                       walkers: int = 0, planner: str = "dcm") -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
     values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
     ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
     the PCA heading (`sims.humanoid.episode.EpisodeConfig`); ``walkers`` people pace near the
-    robot (`EpisodeConfig.walkers`). ``progress`` shows a progress bar on stderr.
+    robot (`EpisodeConfig.walkers`); ``planner`` is the gait's footstep planner
+    (`EpisodeConfig.planner`). ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.
@@ -642,7 +647,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     from sims.humanoid import episode
 
     episode_fn = _humanoid_episode(tracker, particles, frames, tuple(resolution), heading_gain,
-                                   turn_prediction, int(walkers))
+                                   turn_prediction, int(walkers), planner)
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
@@ -661,7 +666,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     run_s = time.perf_counter() - t1
     table = task_table(results, frames)
     print(table, file=stream)
-    people = f", {walkers} walkers" if walkers else ""
+    people = (f", {walkers} walkers" if walkers else "") + (
+        f", {planner} planner" if planner != "dcm" else "")
     print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}"
           f"{people}) "
           f"in {run_s:.1f} s after {compile_s:.1f} s of compilation "
@@ -674,7 +680,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
 
 @functools.lru_cache(maxsize=8)
 def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction,
-                      walkers=0):
+                      walkers=0, planner="dcm"):
     """The episode function of a humanoid-reach run. Cached: runs with the same settings in a
     process share it, and so the batches `jaxtrack.montecarlo` compiled for it (it caches them
     by function)."""
@@ -686,7 +692,7 @@ def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn
                 "pf3": humanoid.DepthPF3Config(num_particles=particles),
                 "ukf": humanoid.CentroidUKFConfig(heading=heading)}
     cfg = episode.EpisodeConfig(scene.build(*resolution), tracker=trackers[tracker],
-                                num_frames=frames, walkers=walkers)
+                                num_frames=frames, walkers=walkers, planner=planner)
     return episode.make_episode(cfg)
 
 

@@ -99,6 +99,9 @@ class EpisodeConfig:
       frame_dt: control / tracking period (s); 0.25 is the seed's ~4 Hz.
       substeps: gait sub-steps per frame.
       gait_params: `gait.GaitParams`.
+      planner: the gait's footstep planner (`gait.preview_planner`): ``"dcm"`` (the deadbeat
+        DCM planner, default) or ``"preview-qp"`` (Herdt et al.'s preview QP, seed 000
+        section 4) or a `jaxtrack.control.walking_mpc.PreviewConfig`.
       noise: `sensor.DepthNoise`.
       limits: `control.PoseLimits`.
       max_points: point-cloud capacity after floor removal.
@@ -141,6 +144,7 @@ class EpisodeConfig:
     walker_speed: float = 0.8
     max_point_height: float = 0.7
     record: bool = False
+    planner: object = "dcm"
 
 
 def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
@@ -247,6 +251,7 @@ def make_episode(config: EpisodeConfig):
     n_pts = min(config.max_points, k_win * k_win)
     sub_dt = config.frame_dt / config.substeps
     gp = config.gait_params
+    planner = gait.preview_planner(config.planner)
     n_avg = (3 * max(1, round(2 * gp.step_period / config.frame_dt)) if config.sway_frames is None
              else config.sway_frames)
     if n_avg < 1:
@@ -255,7 +260,8 @@ def make_episode(config: EpisodeConfig):
     def world_step(g, p: Pending):
         """The gait executes the pending command for one frame (nothing before the first)."""
         def sub(gg, kk):
-            return gait.step(kk, gg, p.body_velocity, p.turn_rate, p.stop, gp, sub_dt), None
+            return gait.step(kk, gg, p.body_velocity, p.turn_rate, p.stop, gp, sub_dt,
+                             planner), None
 
         stepped, _ = jax.lax.scan(sub, g, jax.random.split(p.key, config.substeps))
         return jax.tree_util.tree_map(lambda a, b: jnp.where(p.started, a, b), stepped, g)
@@ -304,7 +310,7 @@ def make_episode(config: EpisodeConfig):
         start = jnp.asarray(params.start, dtype)
         target = jnp.asarray(params.target, dtype)
         k_init, k_run = jax.random.split(key)
-        state = State(gait.init(start, gp, dtype),
+        state = State(gait.init(start, gp, dtype, planner),
                       tracker.init(k_init, params.tracker, start),
                       control.smooth_init(dtype) if smooth else control.init(),
                       jnp.broadcast_to(start, (n_avg, 3)),
@@ -321,7 +327,8 @@ def make_episode(config: EpisodeConfig):
                 lambda s, k: frame(s, k, target, params), state, keys)
         # The last command's frame, then let a stopped robot finish its step and settle before
         # the final pose is read.
-        final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt), gp)
+        final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt,
+                                        planner), gp)
         metrics = _metrics(config, n_avg, start, target, truth, est, active, stopped, final)
         if config.record:
             metrics.update(zip(("window_points", "window_row", "window_col", "tracker_keys",
@@ -411,9 +418,9 @@ def _pose_mean(poses):
     return jnp.concatenate([jnp.mean(poses[:, :2], 0), heading[None]])
 
 
-def _settle(gstate, gp, dt, steps: int = 20):
+def _settle(gstate, gp, dt, planner=None, steps: int = 20):
     def body(g, _):
         return gait.step(jax.random.PRNGKey(0), g, jnp.zeros(2, g.com.dtype), 0.0, True, gp,
-                         dt), None
+                         dt, planner), None
 
     return jax.lax.scan(body, gstate, None, length=steps)[0]

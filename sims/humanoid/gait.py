@@ -34,6 +34,13 @@ that only the closed loop corrects. Near the
 target the commanded velocity is small and the robot walks in place (seed section 5.3.1),
 still subject to the slip and heading noise. Once the controller has stopped, the current step
 is finished and the robot stands: the CoM glides to the middle of the feet.
+
+Planners. The footstep rule above is the default (``planner="dcm"``). ``"preview-qp"`` is the
+seed's own generator, Herdt et al.'s preview QP (`jaxtrack.control.walking_mpc`): solved every
+0.1 s from the CoM's position, velocity and acceleration, its first jerk drives the CoM (the
+cart-table model instead of the LIPM over a point foot) and its next footstep is the swing
+foot's target. It tracks forward speeds and turns as well, and slow sideways commands poorly;
+measurements against the DCM planner: docs/humanoid_preview_qp.md.
 """
 
 from __future__ import annotations
@@ -46,11 +53,15 @@ import jax.numpy as jnp
 
 from jaxtrack import geometry
 from jaxtrack.angles import wrap
+from jaxtrack.control import walking_mpc
 from sims.humanoid.scene import Scene
 
 Array = jax.Array
 
-__all__ = ["GaitParams", "GaitState", "init", "step", "qpos", "torso_pose", "feet"]
+__all__ = ["GaitParams", "GaitState", "PLANNERS", "preview_planner", "step_constraints", "init",
+           "step", "qpos", "torso_pose", "feet"]
+
+PLANNERS = ("dcm", "preview-qp")
 
 _G = 9.81
 
@@ -99,6 +110,9 @@ class GaitState(NamedTuple):
       phase: time since the step started (s).
       heading, heading_next: walking heading at the start and end of the current step.
       standing: bool, the robot has stopped walking.
+      com_acc: [2] CoM acceleration (the preview QP's state; the LIPM's with the DCM planner).
+      com_jerk: [2] the preview QP's jerk, held over its sample period.
+      warm: [n] the preview QP's last solution (its warm start); [0] with the DCM planner.
     """
 
     com: Array
@@ -114,19 +128,56 @@ class GaitState(NamedTuple):
     heading: Array
     heading_next: Array
     standing: Array
+    com_acc: Array
+    com_jerk: Array
+    warm: Array
 
 
 def _omega(params):
     return jnp.sqrt(_G / params.com_height)
 
 
-def init(pose: Array, params: GaitParams = GaitParams(), dtype=jnp.float32) -> GaitState:
+def preview_planner(planner) -> walking_mpc.PreviewConfig | None:
+    """The footstep planner: None or ``"dcm"`` for the deadbeat DCM planner (module notes),
+    ``"preview-qp"`` for Herdt et al.'s preview QP with its default `walking_mpc.PreviewConfig`,
+    or a `walking_mpc.PreviewConfig`."""
+    if planner is None or planner == "dcm":
+        return None
+    if planner == "preview-qp":
+        return walking_mpc.PreviewConfig()
+    if isinstance(planner, walking_mpc.PreviewConfig):
+        return planner
+    raise ValueError(f"unknown planner {planner!r}; expected one of {PLANNERS} or a "
+                     "walking_mpc.PreviewConfig")
+
+
+def step_constraints(params: GaitParams = GaitParams()) -> walking_mpc.StepConstraints:
+    """The preview QP's feasible regions for these gait parameters: strides up to
+    ``max_stride`` forward or back; lateral offsets from 2 cm inside the nominal foot
+    separation to ``max_stride`` outside it (so a 0.1 m/s sideways walk is feasible); the
+    ZMP's box of `walking_mpc.StepConstraints` (the 16 x 9 cm sole less 2 cm margins)."""
+    return walking_mpc.StepConstraints(
+        step_period=params.step_period, max_stride=params.max_stride,
+        min_lateral=params.foot_separation - 0.02,
+        max_lateral=params.foot_separation + params.max_stride)
+
+
+def _num_qp_variables(planner, params):
+    if planner is None:
+        return 0
+    return 2 * (planner.horizon + walking_mpc.num_steps(planner, params.step_period))
+
+
+def init(pose: Array, params: GaitParams = GaitParams(), dtype=jnp.float32,
+         planner=None) -> GaitState:
     """A robot at ``pose`` (x, y, theta), on the in-place periodic orbit, about to put its
-    weight on the left foot (the right-support step is just ending).
+    weight on the left foot (the right-support step is just ending). ``planner``: see
+    `preview_planner`.
 
     Example:
       >>> state = init(jnp.zeros(3))
     """
+    planner = preview_planner(planner)
     pose = jnp.asarray(pose, dtype)
     xy, th = pose[:2], pose[2]
     half = 0.5 * params.foot_separation
@@ -139,11 +190,13 @@ def init(pose: Array, params: GaitParams = GaitParams(), dtype=jnp.float32) -> G
                      support=right, support_yaw=th, swing_start=left, swing_start_yaw=th,
                      swing_target=left, swing_target_yaw=th, side=jnp.asarray(-1.0, dtype),
                      phase=jnp.asarray(params.step_period, dtype), heading=th, heading_next=th,
-                     standing=jnp.asarray(False))
+                     standing=jnp.asarray(False), com_acc=(w * w * (xy - left)).astype(dtype),
+                     com_jerk=jnp.zeros(2, dtype),
+                     warm=jnp.zeros(_num_qp_variables(planner, params), dtype))
 
 
 def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, stop: Array,
-         params: GaitParams = GaitParams(), dt=0.05) -> GaitState:
+         params: GaitParams = GaitParams(), dt=0.05, planner=None) -> GaitState:
     """Advance the gait by ``dt`` under a command (one sub-step of a control period).
 
     Args:
@@ -153,6 +206,10 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
       turn_rate: commanded heading rate (rad/s).
       stop: bool, the controller has stopped: finish the step, then stand.
       params: `GaitParams`; dt: sub-step (s), a divisor of the step period.
+      planner: the footstep planner (`preview_planner`; static): the deadbeat DCM planner
+        (default), or the preview QP, solved again at every sub-step (a model-predictive
+        loop at 1 / dt) from the CoM's position, velocity and acceleration: the swing foot
+        heads for the plan's next footstep, and the CoM follows the plan's first jerk.
 
     Returns:
       The new `GaitState`.
@@ -181,6 +238,7 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
 
     com0 = jnp.where(switch, rigid(state.com), state.com)
     vel0 = jnp.where(switch, geometry.rotate(d_head, state.com_vel), state.com_vel)
+    acc0 = jnp.where(switch, geometry.rotate(d_head, state.com_acc), state.com_acc)
     new_support = pivot
     new_support_yaw = state.swing_target_yaw + d_head
     swing_from = rigid(state.support)
@@ -215,20 +273,85 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
     heading_next = sel(jnp.where(stand, heading_now, heading_next), state.heading_next)
     phase = jnp.where(switch, 0.0, state.phase)
     standing = state.standing | stand
-    # --- CoM: LIPM over the support foot, or glide to the middle of the feet ----------------
-    ch, sh = jnp.cosh(w * dt), jnp.sinh(w * dt)
-    rel = com0 - support
-    com_walk = support + rel * ch + vel0 / w * sh
-    vel_walk = rel * w * sh + vel0 * ch
+    qp_plan = preview_planner(planner)
+    if qp_plan is not None:
+        # --- preview QP: the next footsteps and the CoM's jerk over the horizon -------------
+        # Solved at the QP's sample instants; the jerk is held in between, as the model has it.
+        per_sample = round(qp_plan.sample_period / dt)
+        due = jnp.round(phase / dt).astype(jnp.int32) % per_sample == 0
+        jerk_n, landing_qp, warm_n = _preview_step(
+            qp_plan, params, com0, vel0, acc0, support, support_yaw, side, phase,
+            heading_next, v, turn_rate, state.warm)
+        jerk = jnp.where(due, jerk_n, state.com_jerk)
+        warm = jnp.where(due, warm_n, state.warm)
+        swing_target = jnp.where(standing | ~due, swing_target, landing_qp)
+        com_n = com0 + vel0 * dt + acc0 * dt ** 2 / 2 + jerk * dt ** 3 / 6
+        vel_n = vel0 + acc0 * dt + jerk * dt ** 2 / 2
+        acc_n = acc0 + jerk * dt
+    else:
+        # --- DCM planner: the LIPM over the support foot --------------------------------
+        ch, sh = jnp.cosh(w * dt), jnp.sinh(w * dt)
+        rel = com0 - support
+        com_n = support + rel * ch + vel0 / w * sh
+        vel_n = rel * w * sh + vel0 * ch
+        acc_n = w * w * (com_n - support)
+        warm, jerk = state.warm, state.com_jerk
+    # --- standing: the CoM glides to the middle of the feet ----------------------------------
     mid = 0.5 * (support + swing_target)
     a = 1.0 - jnp.exp(-dt / params.stand_time)
     com_stand = com0 + a * (mid - com0)
-    com = jnp.where(standing, com_stand, com_walk)
-    com_vel = jnp.where(standing, (com_stand - com0) / dt, vel_walk)
+    com = jnp.where(standing, com_stand, com_n)
+    com_vel = jnp.where(standing, (com_stand - com0) / dt, vel_n)
+    com_acc = jnp.where(standing, 0.0, acc_n)
     phase = jnp.where(standing, T, jnp.minimum(phase + dt, T))
     return GaitState(com.astype(dtype), com_vel.astype(dtype), support, support_yaw,
                      swing_start, swing_start_yaw, swing_target, swing_target_yaw, side,
-                     phase.astype(dtype), heading, heading_next, standing)
+                     phase.astype(dtype), heading, heading_next, standing,
+                     com_acc.astype(dtype), jerk.astype(dtype), warm)
+
+
+def _preview_step(cfg, params, com, vel, acc, support, support_yaw, side, phase,
+                  heading_next, body_velocity, turn_rate, warm):
+    """One solve of the preview QP (`walking_mpc.plan`): its first jerk, the swing foot's
+    landing and the solution (the next solve's warm start).
+
+    The reference heading turns at the commanded rate (clipped to ``max_turn`` per step),
+    reaching ``heading_next`` at the end of the current step: the footsteps' yaws follow it
+    step by step, and the reference velocity is the body-frame command rotated by it."""
+    dtype = com.dtype
+    T = params.step_period
+    m = walking_mpc.num_steps(cfg, T)
+    turn = jnp.clip(turn_rate * T, -params.max_turn, params.max_turn)
+    step_yaws = heading_next + turn * jnp.arange(m, dtype=dtype)
+    t = phase + jnp.arange(1, cfg.horizon + 1, dtype=dtype) * cfg.sample_period
+    theta = heading_next + turn * (t - T) / T
+    # The reference adds the lateral sway velocity of the in-place periodic orbit (point feet,
+    # `init`) to the command: Herdt's cost on the instantaneous velocity otherwise trades the
+    # commanded sideways speed for less sway (0.05 m/s sideways came out at 0.0066 m/s, and
+    # 0.035 m/s with this reference; docs/humanoid_preview_qp.md).
+    k = jnp.floor(t / T - 1e-6)
+    tau = t - k * T
+    w = _omega(params)
+    sway = (-side * (-1.0) ** k * 0.5 * params.foot_separation * w
+            * jnp.sinh(w * (tau - 0.5 * T)) / jnp.cosh(0.5 * w * T))
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    vx, vy = body_velocity[0], body_velocity[1] + sway
+    vref = jnp.stack([c * vx - s * vy, s * vx + c * vy], -1)
+    # Warm start: the last solve's solution moved one sample on (and one step on after a
+    # landing), so that each variable means what it meant then.
+    N = cfg.horizon
+    d = warm[:2 * N].reshape(2, N)
+    d = jnp.concatenate([d[:, 1:], d[:, -1:]], 1)
+    st = warm[2 * N:].reshape(2, m)
+    moved = jnp.concatenate([st[:, 1:], st[:, -1:] * jnp.asarray([[1.0], [-1.0]], dtype)], 1)
+    st = jnp.where(phase == 0, moved, st)
+    warm = jnp.concatenate([d.reshape(-1), st.reshape(-1)])
+    warm_start = walking_mpc.qp.BoxQPSolution(warm, jnp.zeros((), dtype),
+                                              jnp.ones(warm.shape, bool))
+    plan = walking_mpc.plan(jnp.stack([com, vel, acc]), support, support_yaw, side, phase,
+                            step_yaws, vref, params.com_height, cfg, step_constraints(params),
+                            warm_start)
+    return plan.jerk[0], plan.footsteps[0], plan.solution.x
 
 
 def _progress(state, params):

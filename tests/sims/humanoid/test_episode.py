@@ -27,6 +27,22 @@ def test_one_episode_runs_under_jit_and_vmap(sc):
     assert np.all(m["pos_err_max"] < 0.15)
 
 
+def test_preview_qp_planner_walks_the_closed_loop_towards_the_target(sc):
+    """The preview-QP planner in the closed loop: the robot walks towards a target 0.3 m ahead
+    (the command is 0.03 m/s, so 24 frames of 0.25 s cover about 0.15 m) and the tracker
+    follows it."""
+    cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=16), num_frames=24,
+                                max_points=32, planner="preview-qp")
+    m = jax.jit(episode.make_episode(cfg))(jax.random.PRNGKey(2),
+                                           episode.make_params([0.3, 0.0, 0.0]))
+    truth = np.asarray(m["truth"])
+    assert np.all(np.isfinite(truth))
+    assert 0.08 < truth[-1, 0] < 0.25 and abs(truth[-1, 1]) < 0.06
+    assert np.max(m["pos_err"]) < 0.15
+    with pytest.raises(ValueError, match="unknown planner"):
+        episode.make_episode(episode.EpisodeConfig(sc, planner="herdt"))
+
+
 def test_particle_filter_converges_on_a_standing_robot(sc):
     """A diffuse initial cloud (6 cm std) around a robot that stands at its target."""
     cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=64, init_spread=0.06),
