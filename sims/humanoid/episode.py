@@ -257,13 +257,22 @@ def make_episode(config: EpisodeConfig):
     if n_avg < 1:
         raise ValueError(f"sway_frames must be >= 1; got {config.sway_frames}")
 
-    def world_step(g, p: Pending):
-        """The gait executes the pending command for one frame (nothing before the first)."""
-        def sub(gg, kk):
-            return gait.step(kk, gg, p.body_velocity, p.turn_rate, p.stop, gp, sub_dt,
-                             planner), None
+    def world_step(g, p: Pending, frame_index=None):
+        """The gait executes the pending command for one frame (nothing before the first).
 
-        stepped, _ = jax.lax.scan(sub, g, jax.random.split(p.key, config.substeps))
+        With the preview QP, ``frame_index`` (unbatched) says at which sub-steps it is solved:
+        every episode starts walking at frame 1 with a step, so the QP's sample instants are
+        the same sub-steps in every episode, and ``lax.cond`` skips the solve in between even
+        under ``vmap`` (the gait's own schedule, from its phase, is the same)."""
+        def sub(gg, x):
+            kk, i = x
+            solve = (None if frame_index is None else
+                     gait.solve_schedule((frame_index - 1) * config.substeps + i, sub_dt, planner))
+            return gait.step(kk, gg, p.body_velocity, p.turn_rate, p.stop, gp, sub_dt,
+                             planner, solve), None
+
+        stepped, _ = jax.lax.scan(sub, g, (jax.random.split(p.key, config.substeps),
+                                           jnp.arange(config.substeps)))
         return jax.tree_util.tree_map(lambda a, b: jnp.where(p.started, a, b), stepped, g)
 
     def sense(key, g, turn_rate, walkers):
@@ -293,9 +302,9 @@ def make_episode(config: EpisodeConfig):
                                    stop_pose=_pose_mean(history))
         return cstate, history, cmd, cmd.stopped
 
-    def frame(s: State, key, target, params: EpisodeParams, walkers=None):
+    def frame(s: State, key, target, params: EpisodeParams, walkers=None, index=None):
         k_obs, k_trk, k_gait = jax.random.split(key, 3)
-        g = world_step(s.gait, s.pending)
+        g = world_step(s.gait, s.pending, index)
         truth, scan, window = sense(k_obs, g, s.pending.turn_rate, walkers)
         tstate, est = tracker.update(k_trk, s.tracker, scan, params.tracker)
         recorded = (*window, k_trk, scan.turn_rate) if config.record else ()
@@ -317,14 +326,17 @@ def make_episode(config: EpisodeConfig):
                       Pending(jnp.zeros(2, dtype), jnp.zeros((), dtype), jnp.asarray(False),
                               k_run, jnp.asarray(False)))
         keys = jax.random.split(k_run, config.num_frames)
+        frames = jnp.arange(config.num_frames)
         if config.walkers:
             paths = walker_positions(jax.random.fold_in(key, 1), start, target, config.walkers,
                                      config.num_frames, config.frame_dt, config.walker_speed)
             state, (truth, est, active, stopped, recorded) = jax.lax.scan(
-                lambda s, x: frame(s, x[0], target, params, x[1]), state, (keys, paths))
+                lambda s, x: frame(s, x[0], target, params, x[1], x[2]), state,
+                (keys, paths, frames))
         else:
             state, (truth, est, active, stopped, recorded) = jax.lax.scan(
-                lambda s, k: frame(s, k, target, params), state, keys)
+                lambda s, x: frame(s, x[0], target, params, index=x[1]), state,
+                (keys, frames))
         # The last command's frame, then let a stopped robot finish its step and settle before
         # the final pose is read.
         final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt,

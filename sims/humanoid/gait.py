@@ -59,7 +59,7 @@ from sims.humanoid.scene import Scene
 Array = jax.Array
 
 __all__ = ["GaitParams", "GaitState", "PLANNERS", "preview_planner", "step_constraints", "init",
-           "step", "qpos", "torso_pose", "feet"]
+           "step", "solve_schedule", "qpos", "torso_pose", "feet"]
 
 PLANNERS = ("dcm", "preview-qp")
 
@@ -162,6 +162,21 @@ def step_constraints(params: GaitParams = GaitParams()) -> walking_mpc.StepConst
         max_lateral=params.foot_separation + params.max_stride)
 
 
+def solve_schedule(substep: Array, dt: float, planner) -> Array | None:
+    """Whether the preview QP is solved at sub-step ``substep`` (counted from the gait's first
+    `step` after `init`, which lands a step): every ``sample_period / dt`` sub-steps, the
+    schedule the gait follows from its phase while it walks. None for the DCM planner. Pass it
+    as `step`'s ``solve`` when the sub-step count is unbatched."""
+    planner = preview_planner(planner)
+    if planner is None:
+        return None
+    per_sample = round(planner.sample_period / dt)
+    if abs(per_sample * dt - planner.sample_period) > 1e-9:
+        raise ValueError(f"the QP's sample period {planner.sample_period} s must be a multiple "
+                         f"of the sub-step {dt} s")
+    return substep % per_sample == 0
+
+
 def _num_qp_variables(planner, params):
     if planner is None:
         return 0
@@ -196,7 +211,7 @@ def init(pose: Array, params: GaitParams = GaitParams(), dtype=jnp.float32,
 
 
 def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, stop: Array,
-         params: GaitParams = GaitParams(), dt=0.05, planner=None) -> GaitState:
+         params: GaitParams = GaitParams(), dt=0.05, planner=None, solve=None) -> GaitState:
     """Advance the gait by ``dt`` under a command (one sub-step of a control period).
 
     Args:
@@ -210,6 +225,11 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
         (default), or the preview QP, solved again at every sub-step (a model-predictive
         loop at 1 / dt) from the CoM's position, velocity and acceleration: the swing foot
         heads for the plan's next footstep, and the CoM follows the plan's first jerk.
+      solve: optional bool, unbatched: whether this sub-step is one of the QP's sample
+        instants. The gait knows that from its phase; a caller whose episodes share their step
+        timing can pass it so that ``lax.cond`` skips the solve in between under ``vmap``
+        (with the phase alone, a batch computes the solve at every sub-step and discards it).
+        It must agree with the phase's schedule.
 
     Returns:
       The new `GaitState`.
@@ -279,9 +299,15 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
         # Solved at the QP's sample instants; the jerk is held in between, as the model has it.
         per_sample = round(qp_plan.sample_period / dt)
         due = jnp.round(phase / dt).astype(jnp.int32) % per_sample == 0
-        jerk_n, landing_qp, warm_n = _preview_step(
-            qp_plan, params, com0, vel0, acc0, support, support_yaw, side, phase,
-            heading_next, v, turn_rate, state.warm)
+        def solve_qp(_):
+            return _preview_step(qp_plan, params, com0, vel0, acc0, support, support_yaw, side,
+                                 phase, heading_next, v, turn_rate, state.warm)
+
+        if solve is None:
+            jerk_n, landing_qp, warm_n = solve_qp(None)
+        else:
+            jerk_n, landing_qp, warm_n = jax.lax.cond(
+                solve, solve_qp, lambda _: (state.com_jerk, swing_target, state.warm), None)
         jerk = jnp.where(due, jerk_n, state.com_jerk)
         warm = jnp.where(due, warm_n, state.warm)
         swing_target = jnp.where(standing | ~due, swing_target, landing_qp)

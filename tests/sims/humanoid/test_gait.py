@@ -16,14 +16,17 @@ QUIET = gait.GaitParams(stride_noise=0.0, heading_noise=0.0, slip_noise=0.0)
 DT = 0.05
 
 
-def _rollout(dtype, velocity, turn_rate, params, steps, stop_after=None):
-    """Sub-steps of the gait under a constant command (stop after ``stop_after`` sub-steps)."""
+def _rollout(dtype, velocity, turn_rate, params, steps, stop_after=None, scheduled=False):
+    """Sub-steps of the gait under a constant command (stop after ``stop_after`` sub-steps;
+    ``scheduled``: pass `gait.solve_schedule` as the step's ``solve``)."""
     v = jnp.asarray(velocity, dtype)
 
     def body(st, x):
         k, i = x
         stop = False if stop_after is None else i >= stop_after
-        st = gait.step(k, st, v, jnp.asarray(turn_rate, dtype), stop, params, DT, "preview-qp")
+        solve = gait.solve_schedule(i, DT, "preview-qp") if scheduled else None
+        st = gait.step(k, st, v, jnp.asarray(turn_rate, dtype), stop, params, DT, "preview-qp",
+                       solve)
         return st, st
 
     keys = jax.random.split(jax.random.PRNGKey(0), steps)
@@ -31,7 +34,7 @@ def _rollout(dtype, velocity, turn_rate, params, steps, stop_after=None):
     return jax.lax.scan(body, init, (keys, jnp.arange(steps)))[1]
 
 
-_rollout_jit = jax.jit(_rollout, static_argnums=(0, 3, 4, 5))
+_rollout_jit = jax.jit(_rollout, static_argnums=(0, 3, 4, 5, 6))
 
 
 def _roll(*args):
@@ -110,6 +113,17 @@ def test_noisy_preview_qp_gait_stays_balanced_and_stops():
     assert np.linalg.norm(states.com[-1] - mid) < 0.005
 
 
+def test_the_solve_schedule_is_the_gaits_own():
+    """Passing `gait.solve_schedule` as ``solve`` (which lets ``lax.cond`` skip the solves in
+    between) changes nothing: float64 trajectories agree to rounding, stop included. (In
+    float32 the QP's conditioning amplifies the two programs' different rounding.)"""
+    a = _roll(jnp.float64, (0.08, 0.03), 0.2, gait.GaitParams(), 120, 90, False)
+    b = _roll(jnp.float64, (0.08, 0.03), 0.2, gait.GaitParams(), 120, 90, True)
+    np.testing.assert_allclose(a.com, b.com, atol=1e-9)
+    np.testing.assert_allclose(a.swing_target, b.swing_target, atol=1e-9)
+    assert np.ptp(a.com[:, 0]) > 0.1
+
+
 def test_planner_option():
     assert gait.preview_planner(None) is None
     assert gait.preview_planner("dcm") is None
@@ -118,6 +132,11 @@ def test_planner_option():
     assert gait.preview_planner(custom) is custom
     with pytest.raises(ValueError, match="unknown planner 'herdt'"):
         gait.preview_planner("herdt")
+    assert gait.solve_schedule(4, DT, "dcm") is None
+    assert bool(gait.solve_schedule(4, DT, "preview-qp")) and not bool(
+        gait.solve_schedule(5, DT, "preview-qp"))
+    with pytest.raises(ValueError, match="multiple of the sub-step"):
+        gait.solve_schedule(0, 0.03, "preview-qp")
     # The DCM planner's state carries no QP warm start.
     assert gait.init(jnp.zeros(3)).warm.shape == (0,)
     assert gait.init(jnp.zeros(3), planner="preview-qp").warm.shape == (24,)
