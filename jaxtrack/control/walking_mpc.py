@@ -78,7 +78,7 @@ class PreviewConfig(NamedTuple):
       zmp_weight: :math:`\\gamma`. Theirs is 1e-6; ours is 1, because with a negligible
         :math:`\\gamma` moving a footstep and the ZMP offsets on it in opposite directions
         costs almost nothing, the Hessian's condition number passes 1e11 and float32 solves
-        fail (NaN); at 1 a model-predictive walk tracks 0.1 m/s within 2 % in float64 and 8 %
+        fail (NaN); at 1 a model-predictive walk tracks 0.1 m/s within 2 % in float64 and 4 %
         in float32.
       step_weight: pull of each step to its nominal one (ours; small).
       iterations: active-set iterations per solve (`qp.solve_box_qp`); a solve warm-started
