@@ -66,11 +66,11 @@ class PreviewConfig(NamedTuple):
 
     Attributes:
       sample_period: :math:`T` (s); 0.1 is Herdt et al.'s.
-      horizon: :math:`N` samples. Herdt et al. preview 1.6 s, two of HRP-2's 0.8 s steps in their implementation's
-        configuration (0.7 s single and 0.1 s double support, CoM at 0.814 m), with
-        :math:`\\omega N T = 5.6` pendulum time constants; 10 samples preview two of our
-        0.5 s steps, :math:`\\omega N T = 6.3` for a 0.25 m CoM. Their 16 samples would be
-        :math:`\\omega N T = 10`: the ZMP-to-jerk map's condition number grows as
+      horizon: :math:`N` samples. Herdt et al. preview 1.6 s, two of HRP-2's 0.8 s steps in
+        their implementation's configuration (0.7 s single and 0.1 s double support, CoM at
+        0.814 m), with :math:`\\omega N T = 5.6` pendulum time constants; 10 samples preview
+        two of our 0.5 s steps, :math:`\\omega N T = 6.3` for a 0.25 m CoM. Their 16 samples
+        would be :math:`\\omega N T = 10`: the ZMP-to-jerk map's condition number grows as
         :math:`e^{\\omega N T}` (2.4e3 at N = 10, 4.6e5 at N = 16), and at 16 the closed
         loop diverged even in float64 (docs/humanoid_preview_qp.md).
       jerk_weight, velocity_weight: :math:`\\alpha, \\beta`; 1e-5 and 1 are the weights of
@@ -81,8 +81,8 @@ class PreviewConfig(NamedTuple):
         fail (NaN); at 1 a model-predictive walk tracks 0.1 m/s within 2 % in float64 and 4 %
         in float32.
       step_weight: pull of each step to its nominal one (ours; small).
-      iterations: active-set iterations per solve (`qp.solve_box_qp`); a solve warm-started
-        from the last one usually needs one or two.
+      iterations: active-set iterations per solve (`qp.solve_box_qp`), warm-started from the
+        last solve; 10 is ours.
     """
 
     sample_period: float = 0.1

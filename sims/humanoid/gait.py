@@ -222,9 +222,10 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
       stop: bool, the controller has stopped: finish the step, then stand.
       params: `GaitParams`; dt: sub-step (s), a divisor of the step period.
       planner: the footstep planner (`preview_planner`; static): the deadbeat DCM planner
-        (default), or the preview QP, solved again at every sub-step (a model-predictive
-        loop at 1 / dt) from the CoM's position, velocity and acceleration: the swing foot
-        heads for the plan's next footstep, and the CoM follows the plan's first jerk.
+        (default), or the preview QP, solved again at each of its sample instants (a
+        model-predictive loop at 1 / sample_period) from the CoM's position, velocity and
+        acceleration: the swing foot heads for the plan's next footstep, and the CoM follows
+        the plan's first jerk until the next solve.
       solve: optional bool, unbatched: whether this sub-step is one of the QP's sample
         instants. The gait knows that from its phase; a caller whose episodes share their step
         timing can pass it so that ``lax.cond`` skips the solve in between under ``vmap``
@@ -297,8 +298,8 @@ def step(key: Array, state: GaitState, body_velocity: Array, turn_rate: Array, s
     if qp_plan is not None:
         # --- preview QP: the next footsteps and the CoM's jerk over the horizon -------------
         # Solved at the QP's sample instants; the jerk is held in between, as the model has it.
-        per_sample = round(qp_plan.sample_period / dt)
-        due = jnp.round(phase / dt).astype(jnp.int32) % per_sample == 0
+        due = solve_schedule(jnp.round(phase / dt).astype(jnp.int32), dt, qp_plan)
+
         def solve_qp(_):
             return _preview_step(qp_plan, params, com0, vel0, acc0, support, support_yaw, side,
                                  phase, heading_next, v, turn_rate, state.warm)
