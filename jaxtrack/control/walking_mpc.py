@@ -33,8 +33,9 @@ differentiates. The cost is Herdt's, rewritten with
 horizon constrains).
 
 `sims.humanoid.gait` runs it in the humanoid's step cycle (planner ``"preview-qp"``), with the
-in-place orbit's sway added to the velocity reference; measurements, and where it falls short
-of the DCM planner (slow sideways commands): docs/humanoid_preview_qp.md.
+in-place orbit's sway added to the velocity reference and a narrow lateral ZMP band;
+measurements, and where it falls short of the DCM planner (sideways walking):
+docs/humanoid_preview_qp.md.
 
 The sample :math:`j` (ending :math:`(j + 1) T` from now) is supported by foot
 :math:`k(j) = \lfloor (\phi + (j + 1) T) / T_{step} - \epsilon \rfloor` (:math:`\phi` the

@@ -58,13 +58,15 @@ def test_preview_qp_gait_tracks_forward_and_backward_commands(dtype):
         assert np.ptp(sway) < 0.1
 
 
-def test_preview_qp_gait_walks_sideways_slower_than_commanded():
-    """Sideways commands are tracked at about three quarters of their speed (measured and
-    documented, not a target): 0.1 m/s comes out between 0.06 and 0.09 m/s."""
-    states = _roll(jnp.float64, (0.0, 0.1), 0.0, QUIET, 240)
+@pytest.mark.parametrize("command, low, high", [(0.1, 0.06, 0.09), (0.01, 0.008, 0.011)])
+def test_preview_qp_gait_walks_sideways(command, low, high):
+    """Sideways commands: fast ones come out about a third slow (0.1 m/s at 0.066 m/s), slow
+    ones nearly whole (0.01 m/s at 0.0091 m/s; with the sole's full width as the ZMP's lateral
+    band they came out at 0.0038 m/s: `gait.step_constraints`). Measured, not targets."""
+    states = _roll(jnp.float64, (0.0, command), 0.0, QUIET, 240)
     speed = _speed(states)
     assert abs(speed[0]) < 0.005
-    assert 0.06 < speed[1] < 0.09
+    assert low < speed[1] < high
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
@@ -89,8 +91,10 @@ def test_footsteps_respect_the_heading_constraints_while_turning(dtype):
 
 
 def test_zmp_stays_in_the_sole_between_landings():
-    """The ZMP of the executed motion, c - c'' / omega^2, in the support foot's frame, stays in
-    the QP's box except in the first sub-step after a landing (the support switches there)."""
+    """The ZMP of the executed motion, c - c'' / omega^2, in the support foot's frame, stays
+    within 2 mm of the QP's box (which holds at the sample ends; the held jerk moves the ZMP in
+    between, by up to 1.1 mm here), except in the first sub-step after a landing (the support
+    switches there)."""
     states = _roll(jnp.float64, (0.1, 0.0), 0.3, QUIET, 200)
     omega2 = 9.81 / QUIET.com_height
     zmp = states.com - states.com_acc / omega2 - states.support
@@ -98,8 +102,8 @@ def test_zmp_stays_in_the_sole_between_landings():
     local = np.stack([c * zmp[:, 0] + s * zmp[:, 1], -s * zmp[:, 0] + c * zmp[:, 1]], -1)
     settled = states.phase > DT + 1e-6
     con = gait.step_constraints(QUIET)
-    assert np.all(np.abs(local[settled, 0]) <= con.zmp_half_length + 1e-3)
-    assert np.all(np.abs(local[settled, 1]) <= con.zmp_half_width + 1e-3)
+    assert np.all(np.abs(local[settled, 0]) <= con.zmp_half_length + 2e-3)
+    assert np.all(np.abs(local[settled, 1]) <= con.zmp_half_width + 2e-3)
 
 
 def test_noisy_preview_qp_gait_stays_balanced_and_stops():
