@@ -81,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--walkers", type=int, default=0,
                        help="people pacing near the robot, occluding it from the camera "
                             "(seed 000 section 5.6)")
+    reach.add_argument("--objects", type=int, default=0,
+                       help="boxes on the floor beside the route, in the camera's view "
+                            "(seed 000 section 5.6)")
     reach.add_argument("--planner", choices=("dcm", "preview-qp"), default="dcm",
                        help="footstep planner of the walking pattern generator: the deadbeat "
                             "DCM planner or Herdt et al.'s preview QP")
@@ -458,13 +461,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--heading-gain must be in (0, 1]; got {args.heading_gain}")
     if args.walkers < 0:
         parser.error(f"--walkers must be >= 0; got {args.walkers}")
+    if args.objects < 0:
+        parser.error(f"--objects must be >= 0; got {args.objects}")
     _import_mjx_quietly()
     run_humanoid_reach(args.episodes, args.tracker, args.out, args.seed, args.particles,
                        args.frames, tuple(args.resolution), lambda_x=args.lambda_x,
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
                        temperature=args.temperature, turn_prediction=args.turn_prediction,
                        heading_gain=args.heading_gain, walkers=args.walkers,
-                       planner=args.planner)
+                       planner=args.planner, objects=args.objects)
     return 0
 
 
@@ -628,14 +633,15 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
                        temperature: float | None = None, turn_prediction: bool = False,
                        heading_gain: float = 0.5, progress: bool = True,
-                       walkers: int = 0, planner: str = "dcm") -> dict:
+                       walkers: int = 0, planner: str = "dcm", objects: int = 0) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
     values of `sims.humanoid.episode.make_params` (defaults: the seed's), e.g. those tuned in
     ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
     the PCA heading (`sims.humanoid.episode.EpisodeConfig`); ``walkers`` people pace near the
-    robot (`EpisodeConfig.walkers`); ``planner`` is the gait's footstep planner
+    robot (`EpisodeConfig.walkers`); ``objects`` boxes stand on the floor beside the route
+    (`EpisodeConfig.floor_objects`); ``planner`` is the gait's footstep planner
     (`EpisodeConfig.planner`). ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
@@ -647,7 +653,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     from sims.humanoid import episode
 
     episode_fn = _humanoid_episode(tracker, particles, frames, tuple(resolution), heading_gain,
-                                   turn_prediction, int(walkers), planner)
+                                   turn_prediction, int(walkers), planner, int(objects))
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
@@ -667,11 +673,18 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     table = task_table(results, frames)
     print(table, file=stream)
     people = (f", {walkers} walkers" if walkers else "") + (
+        f", {objects} floor objects" if objects else "") + (
         f", {planner} planner" if planner != "dcm" else "")
     print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}"
           f"{people}) "
           f"in {run_s:.1f} s after {compile_s:.1f} s of compilation "
           f"({total / run_s:.1f} episodes/s)", file=stream)
+    if objects:
+        # The gait walks through the boxes (they are seen, not felt): say how often it did.
+        clearance = np.concatenate([np.asarray(m["object_clearance"]) for m in results])
+        print(f"floor objects: torso within 0.15 m of a footprint in "
+              f"{100 * np.mean(clearance < 0.15):.1f} % of episodes (median least distance "
+              f"{np.median(clearance):.2f} m)", file=stream)
     if out is not None:
         _write_outputs(Path(out), results, tracker)
     return {"table": table, "metrics": results, "compile_seconds": compile_s,
@@ -680,7 +693,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
 
 @functools.lru_cache(maxsize=8)
 def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction,
-                      walkers=0, planner="dcm"):
+                      walkers=0, planner="dcm", objects=0):
     """The episode function of a humanoid-reach run. Cached: runs with the same settings in a
     process share it, and so the batches `jaxtrack.montecarlo` compiled for it (it caches them
     by function)."""
@@ -692,7 +705,8 @@ def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn
                 "pf3": humanoid.DepthPF3Config(num_particles=particles),
                 "ukf": humanoid.CentroidUKFConfig(heading=heading)}
     cfg = episode.EpisodeConfig(scene.build(*resolution), tracker=trackers[tracker],
-                                num_frames=frames, walkers=walkers, planner=planner)
+                                num_frames=frames, walkers=walkers, planner=planner,
+                                floor_objects=objects)
     return episode.make_episode(cfg)
 
 

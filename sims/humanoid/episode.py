@@ -57,7 +57,7 @@ from sims.humanoid import gait, scene as scene_mod, sensor
 Array = jax.Array
 
 __all__ = ["TRACKERS", "EpisodeConfig", "EpisodeParams", "State", "make_params", "make_episode",
-           "walker_positions", "seed_task_params"]
+           "walker_positions", "floor_object_layout", "footprint_distance", "seed_task_params"]
 
 TRACKERS = humanoid.TRACKERS
 
@@ -116,6 +116,15 @@ class EpisodeConfig:
         1.5 m either side of a point 0.25-0.8 m beside the route, in a random direction
         (`walker_positions`); each is a 1.7 m tall capsule of radius 0.2 m in the depth image.
         0: none (the episode's random draws are then those of a scene without people).
+      floor_objects: boxes standing on the floor beside the route (seed 000 section 5.6's
+        robustness to other things in the camera's view), static for the episode
+        (`floor_object_layout`): footprints 0.1-0.4 m a side at a random yaw, 0.1-0.5 m
+        tall (below ``max_point_height``, so their tops enter the robot's cloud where they
+        fall in its window), centred at a uniform fraction 0.1-0.9 of the way, their nearest
+        edge 0.2-0.5 m to a random side of the straight route. They are seen, not felt: the
+        gait walks through them, so the metrics add ``object_clearance`` (m), the least
+        distance of the true torso to a footprint. Drawn from their own key: the walkers'
+        and the episode's draws do not change. 0: none.
       max_point_height: points higher than this (0.7 m) are not the robot's (a NAO is 0.57 m
         tall; the camera's noise at that range is about 1 cm): dropped before the
         ``max_points`` highest are kept, so that a person's head, shoulders and the side of
@@ -145,6 +154,7 @@ class EpisodeConfig:
     max_point_height: float = 0.7
     record: bool = False
     planner: object = "dcm"
+    floor_objects: int = 0
 
 
 def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
@@ -241,6 +251,9 @@ def make_episode(config: EpisodeConfig):
     tracker = humanoid.build(config.tracker, config.frame_dt, config.smooth)
     if config.num_frames < 1 or config.substeps < 1:
         raise ValueError("num_frames and substeps must be positive")
+    if config.walkers < 0 or config.floor_objects < 0:
+        raise ValueError(f"walkers and floor_objects must be >= 0; got {config.walkers} and "
+                         f"{config.floor_objects}")
     if getattr(config.tracker, "num_particles", 1) < 1:
         raise ValueError("num_particles must be positive")
     sc = config.scene
@@ -275,12 +288,14 @@ def make_episode(config: EpisodeConfig):
                                            jnp.arange(config.substeps)))
         return jax.tree_util.tree_map(lambda a, b: jnp.where(p.started, a, b), stepped, g)
 
-    def sense(key, g, turn_rate, walkers):
-        """The true torso pose, and the camera's points of the robot (world frame)."""
+    def sense(key, g, turn_rate, walkers, objects):
+        """The true torso pose, and the camera's points of the robot (world frame), in front
+        of which the walkers and the floor objects (`sensor.Occluders` or None) stand."""
         truth = gait.torso_pose(g, gp)
         q = gait.qpos(sc, g, gp)
         xpos, xmat = scene_mod.pose_geoms(sc, q)
-        occ = None if walkers is None else _walker_geoms(walkers, dtype)
+        occ = [_walker_geoms(walkers, dtype)] if walkers is not None else []
+        occ = _join_occluders(occ + ([objects] if objects is not None else []))
         pts, mask = sensor.robot_point_cloud(key, sc, xpos, xmat, truth, k_win, bg,
                                              config.noise, dtype=dtype, occluders=occ)
         mask = mask & (pts[:, 2] <= config.max_point_height)
@@ -302,10 +317,11 @@ def make_episode(config: EpisodeConfig):
                                    stop_pose=_pose_mean(history))
         return cstate, history, cmd, cmd.stopped
 
-    def frame(s: State, key, target, params: EpisodeParams, walkers=None, index=None):
+    def frame(s: State, key, target, params: EpisodeParams, walkers=None, index=None,
+              objects=None):
         k_obs, k_trk, k_gait = jax.random.split(key, 3)
         g = world_step(s.gait, s.pending, index)
-        truth, scan, window = sense(k_obs, g, s.pending.turn_rate, walkers)
+        truth, scan, window = sense(k_obs, g, s.pending.turn_rate, walkers, objects)
         tstate, est = tracker.update(k_trk, s.tracker, scan, params.tracker)
         recorded = (*window, k_trk, scan.turn_rate) if config.record else ()
         cstate, history, cmd, stop = behave(s, est, target, params)
@@ -327,21 +343,25 @@ def make_episode(config: EpisodeConfig):
                               k_run, jnp.asarray(False)))
         keys = jax.random.split(k_run, config.num_frames)
         frames = jnp.arange(config.num_frames)
+        objects = (floor_object_layout(jax.random.fold_in(key, 2), start, target,
+                                       config.floor_objects) if config.floor_objects else None)
         if config.walkers:
             paths = walker_positions(jax.random.fold_in(key, 1), start, target, config.walkers,
                                      config.num_frames, config.frame_dt, config.walker_speed)
             state, (truth, est, active, stopped, recorded) = jax.lax.scan(
-                lambda s, x: frame(s, x[0], target, params, x[1], x[2]), state,
+                lambda s, x: frame(s, x[0], target, params, x[1], x[2], objects), state,
                 (keys, paths, frames))
         else:
             state, (truth, est, active, stopped, recorded) = jax.lax.scan(
-                lambda s, x: frame(s, x[0], target, params, index=x[1]), state,
-                (keys, frames))
+                lambda s, x: frame(s, x[0], target, params, index=x[1], objects=objects),
+                state, (keys, frames))
         # The last command's frame, then let a stopped robot finish its step and settle before
         # the final pose is read.
         final = gait.torso_pose(_settle(world_step(state.gait, state.pending), gp, sub_dt,
                                         planner), gp)
         metrics = _metrics(config, n_avg, start, target, truth, est, active, stopped, final)
+        if objects is not None:
+            metrics["object_clearance"] = jnp.min(footprint_distance(objects, truth[:, :2]))
         if config.record:
             metrics.update(zip(("window_points", "window_row", "window_col", "tracker_keys",
                                 "turn_rate"), recorded))
@@ -383,6 +403,64 @@ def _walker_geoms(xy, dtype) -> sensor.Occluders:
     sizes = jnp.broadcast_to(jnp.asarray([0.2, 0.65, 0.0], dtype), (W, 3))
     return sensor.Occluders(np.full(W, 3), sizes, xpos.astype(dtype),
                             jnp.broadcast_to(jnp.eye(3, dtype=dtype), (W, 3, 3)))
+
+
+def floor_object_layout(key, start, target, num: int) -> sensor.Occluders:
+    """``num`` boxes on the floor beside the straight route from ``start`` to ``target``
+    (`EpisodeConfig.floor_objects`), as `sensor.Occluders` (MuJoCo box sizes: half extents).
+
+    Box i has half sides a, b ~ U(0.05, 0.2) m, height h ~ U(0.1, 0.5) m and yaw
+    psi ~ U(0, pi); its centre lies at a fraction u ~ U(0.1, 0.9) of the route and at
+    ``c + a |cos(psi - phi)| + b |sin(psi - phi)|`` to a random side of it (phi: the route's
+    normal's direction), so that its nearest edge is c ~ U(0.2, 0.5) m from the route line.
+
+    Example:
+      >>> occ = floor_object_layout(key, jnp.zeros(3), jnp.array([1.0, 0.5, 0.0]), 2)
+      >>> occ.sizes.shape, occ.xpos.shape, occ.xmat.shape    # (2, 3) (2, 3) (2, 3, 3)
+    """
+    k = jax.random.split(key, 6)
+    dtype = start.dtype
+    route = target[:2] - start[:2]
+    length = jnp.maximum(jnp.linalg.norm(route), 1e-3)
+    normal = jnp.stack([-route[1], route[0]]) / length
+    half = jax.random.uniform(k[0], (num, 2), dtype, 0.05, 0.2)
+    height = jax.random.uniform(k[1], (num,), dtype, 0.1, 0.5)
+    yaw = jax.random.uniform(k[2], (num,), dtype, 0.0, math.pi)
+    u = jax.random.uniform(k[3], (num,), dtype, 0.1, 0.9)
+    side = jnp.where(jax.random.bernoulli(k[4], 0.5, (num,)), 1.0, -1.0).astype(dtype)
+    clearance = jax.random.uniform(k[5], (num,), dtype, 0.2, 0.5)
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    # Half extent of the rotated footprint along the normal: a |e1 . n| + b |e2 . n|.
+    across = (half[:, 0] * jnp.abs(c * normal[0] + s * normal[1])
+              + half[:, 1] * jnp.abs(-s * normal[0] + c * normal[1]))
+    centre = (start[:2] + u[:, None] * route
+              + (side * (clearance + across))[:, None] * normal)
+    xpos = jnp.concatenate([centre, 0.5 * height[:, None]], -1)
+    sizes = jnp.concatenate([half, 0.5 * height[:, None]], -1)
+    zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+    xmat = jnp.stack([jnp.stack([c, -s, zero], -1), jnp.stack([s, c, zero], -1),
+                      jnp.stack([zero, zero, one], -1)], -2)
+    return sensor.Occluders(np.full(num, 6), sizes, xpos, xmat)
+
+
+def footprint_distance(objects: sensor.Occluders, xy: Array) -> Array:
+    """[T] least distance (m) of points ``xy`` [T, 2] to the footprints of upright boxes
+    `sensor.Occluders` (0 inside one)."""
+    rel = xy[:, None, :] - objects.xpos[None, :, :2]                       # [T, G, 2]
+    local = jnp.einsum("tgi,gij->tgj", rel, objects.xmat[:, :2, :2])       # R^T (p - c)
+    outside = jnp.maximum(jnp.abs(local) - objects.sizes[None, :, :2], 0.0)
+    return jnp.min(jnp.linalg.norm(outside, axis=-1), axis=-1)
+
+
+def _join_occluders(parts) -> sensor.Occluders | None:
+    """One `sensor.Occluders` of several (None if there are none)."""
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return sensor.Occluders(np.concatenate([p.types for p in parts]),
+                            *(jnp.concatenate([getattr(p, f) for p in parts])
+                              for f in ("sizes", "xpos", "xmat")))
 
 
 def _metrics(config, n_avg, start, target, truth, est, active, stopped, final):
