@@ -84,6 +84,10 @@ def main(argv: list[str] | None = None) -> int:
     reach.add_argument("--objects", type=int, default=0,
                        help="boxes on the floor beside the route, in the camera's view "
                             "(seed 000 section 5.6)")
+    reach.add_argument("--unknown-objects", action="store_true",
+                       help="with --objects: the camera's background image holds only the "
+                            "floor, so the objects' points enter the robot's cloud (default: "
+                            "they are background, stored before the robot entered)")
     reach.add_argument("--planner", choices=("dcm", "preview-qp"), default="dcm",
                        help="footstep planner of the walking pattern generator: the deadbeat "
                             "DCM planner or Herdt et al.'s preview QP")
@@ -469,7 +473,8 @@ def main(argv: list[str] | None = None) -> int:
                        lambda_theta=args.lambda_theta, position_noise=args.position_noise,
                        temperature=args.temperature, turn_prediction=args.turn_prediction,
                        heading_gain=args.heading_gain, walkers=args.walkers,
-                       planner=args.planner, objects=args.objects)
+                       planner=args.planner, objects=args.objects,
+                       static_background=not args.unknown_objects)
     return 0
 
 
@@ -633,7 +638,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
                        lambda_theta: float = 0.2, position_noise: float = 0.035,
                        temperature: float | None = None, turn_prediction: bool = False,
                        heading_gain: float = 0.5, progress: bool = True,
-                       walkers: int = 0, planner: str = "dcm", objects: int = 0) -> dict:
+                       walkers: int = 0, planner: str = "dcm", objects: int = 0,
+                       static_background: bool = True) -> dict:
     """The seed's 15-task protocol, ``episodes`` per task; prints the table, writes plots.
 
     ``lambda_x``, ``lambda_theta``, ``position_noise`` and ``temperature`` are the tunable
@@ -641,7 +647,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     ``notebooks/02_humanoid_tuning.ipynb``; ``turn_prediction`` and ``heading_gain`` configure
     the PCA heading (`sims.humanoid.episode.EpisodeConfig`); ``walkers`` people pace near the
     robot (`EpisodeConfig.walkers`); ``objects`` boxes stand on the floor beside the route
-    (`EpisodeConfig.floor_objects`); ``planner`` is the gait's footstep planner
+    (`EpisodeConfig.floor_objects`), part of the camera's background image unless
+    ``static_background`` is False (`EpisodeConfig.static_background`); ``planner`` is the gait's footstep planner
     (`EpisodeConfig.planner`). ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
@@ -653,7 +660,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     from sims.humanoid import episode
 
     episode_fn = _humanoid_episode(tracker, particles, frames, tuple(resolution), heading_gain,
-                                   turn_prediction, int(walkers), planner, int(objects))
+                                   turn_prediction, int(walkers), planner, int(objects),
+                                   bool(static_background))
     tasks = episode.seed_task_params(lambda_x=lambda_x, lambda_theta=lambda_theta,
                                      position_noise=position_noise, temperature=temperature)
     key = jax.random.PRNGKey(seed)
@@ -673,7 +681,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     table = task_table(results, frames)
     print(table, file=stream)
     people = (f", {walkers} walkers" if walkers else "") + (
-        f", {objects} floor objects" if objects else "") + (
+        f", {objects} floor objects{'' if static_background else ' (unknown)'}" if objects
+        else "") + (
         f", {planner} planner" if planner != "dcm" else "")
     print(f"{total} episodes ({tracker}, {particles} particles, {resolution[0]}x{resolution[1]}"
           f"{people}) "
@@ -693,7 +702,7 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
 
 @functools.lru_cache(maxsize=8)
 def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn_prediction,
-                      walkers=0, planner="dcm", objects=0):
+                      walkers=0, planner="dcm", objects=0, static_background=True):
     """The episode function of a humanoid-reach run. Cached: runs with the same settings in a
     process share it, and so the batches `jaxtrack.montecarlo` compiled for it (it caches them
     by function)."""
@@ -706,7 +715,7 @@ def _humanoid_episode(tracker, particles, frames, resolution, heading_gain, turn
                 "ukf": humanoid.CentroidUKFConfig(heading=heading)}
     cfg = episode.EpisodeConfig(scene.build(*resolution), tracker=trackers[tracker],
                                 num_frames=frames, walkers=walkers, planner=planner,
-                                floor_objects=objects)
+                                floor_objects=objects, static_background=static_background)
     return episode.make_episode(cfg)
 
 

@@ -7,7 +7,8 @@ Every control period (``frame_dt``, the seed's ~4 Hz) is five stages:
 2. **sense**: the true gait state is posed (`gait.qpos`), MJX kinematics gives the geom poses,
    and the zenithal camera renders the robot's window (`sensor.robot_point_cloud`: the cloud's
    derivative moves rigidly with the torso, see `sensor`), adds Kinect noise, back-projects and
-   removes the floor; the ``max_points`` highest points are kept (a fixed capacity: the robot
+   removes the background (the floor, and the floor objects the camera stored,
+   `sensor.static_heights`); the ``max_points`` highest points are kept (a fixed capacity: the robot
    shows about 40 points at 80 x 60);
 3. **estimate**: the tracker (`jaxtrack.tracking.humanoid`: ``"pf"``, the seed's SIR over
    (x, y) with the PCA heading; ``"pf3"``, SIR over (x, y, theta); ``"ukf"``, a UKF on the
@@ -60,6 +61,7 @@ __all__ = ["TRACKERS", "EpisodeConfig", "EpisodeParams", "State", "make_params",
            "walker_positions", "floor_object_layout", "footprint_distance", "seed_task_params"]
 
 TRACKERS = humanoid.TRACKERS
+FLOOR_THRESHOLD = 0.06   # background subtraction margin (m): `sensor.remove_floor`'s default
 
 
 class EpisodeParams(NamedTuple):
@@ -125,6 +127,10 @@ class EpisodeConfig:
         gait walks through them, so the metrics add ``object_clearance`` (m), the least
         distance of the true torso to a footprint. Drawn from their own key: the walkers'
         and the episode's draws do not change. 0: none.
+      static_background: the camera's background image holds the floor objects (stored with
+        them in place before the robot entered, `sensor.static_heights`), so their points are
+        background, as the floor's are; False: only the floor is known (the objects' points
+        enter the cloud). Without floor objects it changes nothing.
       max_point_height: points higher than this (0.7 m) are not the robot's (a NAO is 0.57 m
         tall; the camera's noise at that range is about 1 cm): dropped before the
         ``max_points`` highest are kept, so that a person's head, shoulders and the side of
@@ -155,6 +161,7 @@ class EpisodeConfig:
     record: bool = False
     planner: object = "dcm"
     floor_objects: int = 0
+    static_background: bool = True
 
 
 def make_params(target, start=(0.0, 0.0, 0.0), lambda_x=0.1, lambda_theta=0.2,
@@ -297,8 +304,12 @@ def make_episode(config: EpisodeConfig):
         occ = [_walker_geoms(walkers, dtype)] if walkers is not None else []
         occ = _join_occluders(occ + ([objects] if objects is not None else []))
         pts, mask = sensor.robot_point_cloud(key, sc, xpos, xmat, truth, k_win, bg,
-                                             config.noise, dtype=dtype, occluders=occ)
+                                             config.noise, FLOOR_THRESHOLD, dtype=dtype,
+                                             occluders=occ)
         mask = mask & (pts[:, 2] <= config.max_point_height)
+        if objects is not None and config.static_background:
+            heights = sensor.static_heights(sc, objects, truth[:2], k_win, dtype)
+            mask = mask & (pts[:, 2] > heights + FLOOR_THRESHOLD)
         score = jnp.where(mask, pts[:, 2], -jnp.inf)
         _, idx = jax.lax.top_k(score, n_pts)
         window = ((pts, *sensor.window_origin(sc.camera, truth[:2], k_win)) if config.record

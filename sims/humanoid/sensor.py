@@ -57,7 +57,8 @@ Array = jax.Array
 
 __all__ = ["DepthNoise", "Window", "Occluders", "ray_distances", "geom_distances", "render",
            "background", "window_size", "render_window", "add_noise", "ceiling_camera",
-           "back_project", "window_origin", "remove_floor", "point_cloud", "robot_point_cloud"]
+           "back_project", "window_origin", "remove_floor", "static_heights", "point_cloud",
+           "robot_point_cloud"]
 
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _BOX = 0, 2, 3, 4, 6
 
@@ -308,6 +309,27 @@ def remove_floor(points: Array, valid: Array, floor_threshold=0.06) -> Array:
     """Mask of points higher than ``floor_threshold`` above the floor (z = 0), the floor
     plane of the zenithal set-up being known; [P] bools."""
     return valid.reshape(-1) & (points[:, 2] > floor_threshold)
+
+
+def static_heights(scene: Scene, static: Occluders, centre: Array, size: int,
+                   dtype=jnp.float32) -> Array:
+    """[K*K] height (m) of the static background each pixel of the window centred on the
+    image of ``centre`` sees: the floor (0) or a ``static`` primitive (objects on the floor).
+
+    A fixed camera can store this image before the robot enters the room (seed 000 section
+    3.1 separates the robot from the background in the depth image); with the zenithal
+    camera a pixel's height is the camera's height minus its depth, so keeping points higher
+    than ``static_heights + threshold`` is background subtraction, of which `remove_floor` is
+    the case without objects.
+
+    Example:
+      >>> h = static_heights(sc, boxes, pose[:2], window_size(sc.camera))
+      >>> mask = mask & (pts[:, 2] > h + 0.06)
+    """
+    row, col = window_origin(scene.camera, lax.stop_gradient(centre), size)
+    depth = _render_occluders(scene, static, row, col, size, dtype).reshape(-1)
+    height = jnp.asarray(scene.camera.position[2], dtype) - depth
+    return lax.stop_gradient(jnp.where(jnp.isfinite(depth), jnp.maximum(height, 0.0), 0.0))
 
 
 def point_cloud(key: Array, scene: Scene, window: Window, noise: DepthNoise = DepthNoise(),

@@ -115,6 +115,57 @@ def test_a_box_beside_the_robot_shows_its_top_in_the_cloud():
     np.testing.assert_allclose(pts1[robot & mask0], pts0[robot & mask0])
 
 
+def test_a_stored_background_holds_the_boxes_heights():
+    sc = scene.build(80, 60)
+    k = sensor.window_size(sc.camera)
+    centre = jnp.array([1.0, 0.6])
+    box = sensor.Occluders(np.array([6]), jnp.asarray([[0.08, 0.05, 0.15]]),
+                           jnp.asarray([[1.1, 0.6, 0.15]]), jnp.eye(3)[None])
+    heights = np.asarray(sensor.static_heights(sc, box, centre, k))
+    assert heights.shape == (k * k,)
+    # A pixel's background height is the box's top (0.3 m) where its ray meets the top face,
+    # between 0 and 0.3 m on a side face, and the floor's 0 elsewhere: brute force from the
+    # pixel's ray.
+    row, col = map(int, sensor.window_origin(sc.camera, centre, k))
+    cam = np.asarray(sc.camera.position, float)
+    j, i = np.meshgrid(np.arange(k) + 0.5 + col, np.arange(k) + 0.5 + row)
+    floor = np.stack([cam[0] + cam[2] * (j - sc.camera.cx) / sc.camera.fx,
+                      cam[1] - cam[2] * (i - sc.camera.cy) / sc.camera.fy], -1).reshape(-1, 2)
+    # The ray's first point inside the box, marching down from the top in 1 mm steps.
+    z = np.linspace(0.3, 0.0, 301)
+    along = cam[:2] + (floor[:, None] - cam[:2]) * ((cam[2] - z) / cam[2])[None, :, None]
+    inside = (np.abs(along[..., 0] - 1.1) <= 0.08) & (np.abs(along[..., 1] - 0.6) <= 0.05)
+    want = np.where(inside.any(1), z[np.argmax(inside, 1)], 0.0)
+    assert np.sum(want == 0.3) >= 2 and np.sum((want > 0) & (want < 0.3)) >= 2
+    np.testing.assert_allclose(heights, want, atol=1.01e-3)
+
+
+def test_stored_boxes_leave_the_cloud_and_unknown_ones_enter_it():
+    """The same episode (keys, and boxes within the robot's window at the start) in an empty
+    room, with the boxes in the camera's background image, and with the floor only known:
+    the stored boxes change nothing the tracker sees, the unknown ones do."""
+    params = episode.make_params([0.5, 0.0, 0.0])
+    start, target = jnp.zeros(3, jnp.float32), jnp.asarray(params.target, jnp.float32)
+    for seed in range(200):
+        key = jax.random.PRNGKey(seed)
+        occ = episode.floor_object_layout(jax.random.fold_in(key, 2), start, target, 3)
+        if float(jnp.min(episode.footprint_distance(occ, start[None, :2]))) < 0.22:
+            break
+    else:
+        raise AssertionError("no layout with a box in the window")
+
+    def run(**kw):
+        cfg = episode.EpisodeConfig(scene.build(40, 30), humanoid.DepthPFConfig(num_particles=8),
+                                    num_frames=4, max_points=32, **kw)
+        return np.asarray(jax.jit(episode.make_episode(cfg))(key, params)["estimate"])
+
+    empty = run()
+    stored = run(floor_objects=3)
+    unknown = run(floor_objects=3, static_background=False)
+    np.testing.assert_allclose(stored, empty, atol=1e-6)
+    assert np.max(np.abs(unknown - empty)) > 1e-3
+
+
 def test_an_episode_among_boxes_and_a_walker_reports_its_clearance(capsys):
     cfg = episode.EpisodeConfig(scene.build(24, 18), humanoid.DepthPFConfig(num_particles=16),
                                 num_frames=12, max_points=32, walkers=1, floor_objects=2)
