@@ -7,7 +7,9 @@ MuJoCo; only the ``run`` commands and the scene demos import it. ``demo`` (``all
 or ``following``) dispatches to `sims.demo.run`, ``demo filters`` to `jaxtrack.demo.run`, ``run
 humanoid-reach`` to `run_humanoid_reach`, ``run person-following`` to
 `sims.following.report.run_person_following`, ``track`` (the sensing step and a user estimator
-replayed on a ROS bag) to `jaxtrack.io.replay.track_bag`, ``evaluate`` (CLEAR MOT of a tracks
+replayed on a ROS bag) to `jaxtrack.io.replay.track_bag` (``--depth-topic``:
+`jaxtrack.io.depth_replay.track_depth_bag`; ``--cloud-topic`` / ``--rgbd-topics``:
+`jaxtrack.io.rgbd_replay.track_rgbd_bag`), ``evaluate`` (CLEAR MOT of a tracks
 file against ground truth) to `jaxtrack.io.trajectories.evaluate_files`, ``run rgbd-people``
 and ``train-hog`` to `sims.following.crowd_report`, ``run service`` to
 `sims.service.report.run_service`.
@@ -223,10 +225,31 @@ def main(argv: list[str] | None = None) -> int:
     trk.add_argument("--camera-position", nargs=3, type=float, default=None,
                      metavar=("X", "Y", "Z"), help="with --depth-topic: the camera's optical "
                                                    "centre (m; Z its height above the floor)")
+    trk.add_argument("--cloud-topic", default=None,
+                     help="instead of --laser-topic: sensor_msgs/PointCloud2 of an RGB-D "
+                          "camera on the robot; people detected (seed 001) and tracked")
+    trk.add_argument("--rgbd-topics", nargs=2, default=None, metavar=("DEPTH", "COLOUR"),
+                     help="instead of --laser-topic: registered depth (16UC1 / 32FC1) and "
+                          "colour (rgb8, bgr8, rgba8, bgra8, mono8) sensor_msgs/Image topics "
+                          "of an RGB-D camera on the robot, paired by nearest time; needs "
+                          "--focal")
+    trk.add_argument("--mount", nargs=3, type=float, default=None, metavar=("X", "Y", "Z"),
+                     help="with --cloud-topic / --rgbd-topics: the camera's optical centre in "
+                          "the robot's base frame (m; x forward, y left, z up)")
+    trk.add_argument("--tilt", type=float, default=0.0,
+                     help="with --cloud-topic / --rgbd-topics: the camera's downward pitch "
+                          "(degrees)")
+    trk.add_argument("--cloud-frame", choices=("optical", "base"), default="optical",
+                     help="with --cloud-topic: the clouds' frame, the camera's optical frame "
+                          "(x right, y down, z forward) or already the robot's base frame")
+    trk.add_argument("--min-confidence", type=float, default=0.5,
+                     help="with --cloud-topic / --rgbd-topics: detections with a lower HOG "
+                          "confidence are not tracked")
     trk.add_argument("--focal", nargs=2, type=float, default=None, metavar=("FX", "FY"),
-                     help="with --depth-topic: focal lengths (pixels)")
+                     help="with --depth-topic or --rgbd-topics: focal lengths (pixels); with "
+                          "--cloud-topic, an organised cloud's, for the HOG confidence")
     trk.add_argument("--principal", nargs=2, type=float, default=None, metavar=("CX", "CY"),
-                     help="with --depth-topic: principal point from the image's corner "
+                     help="with --focal: principal point from the image's corner "
                           "(pixels; ROS CameraInfo K[0,2] + 0.5, K[1,2] + 0.5); default the "
                           "image centre")
     trk.add_argument("--start", nargs=3, type=float, default=None,
@@ -235,8 +258,10 @@ def main(argv: list[str] | None = None) -> int:
                           "first image's points, heading 0)")
     trk.add_argument("--tracker", choices=("pf", "pf3", "ukf"), default="pf",
                      help="with --depth-topic: the humanoid tracker")
-    trk.add_argument("--max-points", type=int, default=96,
-                     help="with --depth-topic: the highest points the tracker is given")
+    trk.add_argument("--max-points", type=int, default=None,
+                     help="with --depth-topic: the highest points the tracker is given "
+                          "(default 96); with --cloud-topic: points per cloud (default the "
+                          "largest cloud's)")
     trk.add_argument("--max-height", type=float, default=None,
                      help="with --depth-topic: points higher than this (m) are not the "
                           "robot's (people walking by); default no limit")
@@ -289,11 +314,15 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     if extra and getattr(args, "scene", None) != "humanoid-routes":
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    if args.command == "track" and (args.cloud_topic or args.rgbd_topics):
+        return _track_rgbd(parser, args)
     if args.command == "track" and args.depth_topic:
         return _track_depth(parser, args)
     if args.command == "track":
         if not args.laser_topic:
-            parser.error("give --laser-topic (laser scans) or --depth-topic (depth images)")
+            parser.error("give --laser-topic (laser scans), --depth-topic (depth images), "
+                         "--cloud-topic (point clouds) or --rgbd-topics (depth + colour "
+                         "images)")
         if args.chunk < 1 or args.max_detections < 1:
             parser.error("--chunk and --max-detections must be positive")
         if not args.bag.exists():
@@ -580,6 +609,8 @@ def _track_depth(parser, args) -> int:
                      "be finite")
     if not (args.camera_position[2] > 0 and min(args.focal) > 0):
         parser.error("the camera must be above the floor (Z > 0) with positive focal lengths")
+    if args.max_points is None:
+        args.max_points = 96
     if args.chunk < 1 or args.max_points < 1:
         parser.error("--chunk and --max-points must be positive")
     if not args.bag.exists():
@@ -604,6 +635,73 @@ def _track_depth(parser, args) -> int:
         if "rosbags" not in str(err):
             raise
         parser.exit(2, f"jaxtrack track: {err}\n")
+    return 0
+
+
+def _track_rgbd(parser, args) -> int:
+    """``jaxtrack track --cloud-topic`` / ``--rgbd-topics``: people detected and tracked in
+    recorded RGB-D. Every user error is one line and exit code 2."""
+    import tempfile
+
+    def fail(message):
+        parser.exit(2, f"jaxtrack track: {message}\n")
+
+    if args.cloud_topic and args.rgbd_topics:
+        fail("give --cloud-topic or --rgbd-topics, not both")
+    option = "--cloud-topic" if args.cloud_topic else "--rgbd-topics"
+    for other, given in (("--laser-topic", args.laser_topic), ("--depth-topic", args.depth_topic)):
+        if given:
+            fail(f"give {other} or {option}, not both")
+    if args.mount is None:
+        fail(f"{option} needs --mount X Y Z (the camera's optical centre in the robot's base "
+             f"frame, m)")
+    if args.rgbd_topics and args.focal is None:
+        fail("--rgbd-topics needs --focal FX FY (the camera's focal lengths, pixels)")
+    if args.rgbd_topics and args.max_points is not None:
+        fail("--max-points applies to --cloud-topic and --depth-topic, not --rgbd-topics")
+    if args.rgbd_topics and args.cloud_frame != "optical":
+        fail("--cloud-frame applies to --cloud-topic")
+    values = [*args.mount, args.tilt, args.min_confidence, *(args.focal or ()),
+              *(args.principal or ())]
+    if not all(math.isfinite(v) for v in values):
+        fail("--mount, --tilt, --min-confidence, --focal and --principal must be finite")
+    if args.focal is not None and min(args.focal) <= 0:
+        fail(f"--focal must be positive; got {args.focal[0]:g} {args.focal[1]:g}")
+    if args.principal is not None and args.focal is None:
+        fail("--principal needs --focal")
+    if args.chunk < 1 or (args.max_points is not None and args.max_points < 1):
+        fail("--chunk and --max-points must be positive")
+    if args.odom_topic and args.tf_frames:
+        fail("give --odom-topic or --tf-frames, not both")
+    if not args.bag.exists():
+        fail(f"--bag {args.bag} does not exist")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=args.out):
+            pass
+    except OSError as err:
+        fail(f"--out {args.out} is not a writable directory ({err.strerror or err})")
+    from jaxtrack.io import rgbd_replay
+
+    try:
+        depth_topic, colour_topic = args.rgbd_topics or (None, None)
+        rgbd_replay.track_rgbd_bag(
+            args.bag, args.out, mount=rgbd_replay.mount(tuple(args.mount),
+                                                        math.radians(args.tilt)),
+            cloud_topic=args.cloud_topic, depth_topic=depth_topic, colour_topic=colour_topic,
+            focal=tuple(args.focal) if args.focal else None,
+            principal=tuple(args.principal) if args.principal else None,
+            odom_topic=args.odom_topic,
+            tf_frames=tuple(args.tf_frames) if args.tf_frames else None,
+            cloud_frame=args.cloud_frame, max_points=args.max_points,
+            min_confidence=args.min_confidence, seed=args.seed, chunk=args.chunk,
+            time_source=args.time_source)
+    except ValueError as err:          # bags.BagError included
+        fail(err)
+    except ImportError as err:
+        if "rosbags" not in str(err):
+            raise
+        fail(err)
     return 0
 
 
@@ -648,8 +746,8 @@ def run_humanoid_reach(episodes: int = 64, tracker: str = "pf", out: Path | None
     the PCA heading (`sims.humanoid.episode.EpisodeConfig`); ``walkers`` people pace near the
     robot (`EpisodeConfig.walkers`); ``objects`` boxes stand on the floor beside the route
     (`EpisodeConfig.floor_objects`), part of the camera's background image unless
-    ``static_background`` is False (`EpisodeConfig.static_background`); ``planner`` is the gait's footstep planner
-    (`EpisodeConfig.planner`). ``progress`` shows a progress bar on stderr.
+    ``static_background`` is False (`EpisodeConfig.static_background`); ``planner`` is the
+    gait's footstep planner (`EpisodeConfig.planner`). ``progress`` shows a progress bar on stderr.
 
     Returns ``{"table": str, "metrics": [per-task metric dicts], "compile_seconds",
     "run_seconds"}``.

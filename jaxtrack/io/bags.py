@@ -10,6 +10,10 @@ seconds.
   return masked and set to ``range_max``: what `jaxtrack.perception.legs.detect` expects).
 - `read_depth`: ``sensor_msgs/Image`` depth (16UC1 millimetres or 32FC1 metres) ->
   `DepthImages` in metres.
+- `read_colour`: ``sensor_msgs/Image`` colour (rgb8, bgr8, rgba8, bgra8, mono8) ->
+  `ColourImages`, RGB in [0, 1].
+- `read_point_clouds`: ``sensor_msgs/PointCloud2`` -> `PointClouds` (points [T, N, 3] in the
+  message's frame, their colours and a mask).
 - `read_odometry`: ``nav_msgs/Odometry`` -> `Odometry` (x, y, yaw) and (vx, vy, wz).
 - `read_joint_states`: ``sensor_msgs/JointState`` -> `JointStates` (e.g. a camera's pan
   angle), the named joints' positions [T, J].
@@ -50,16 +54,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["LaserScans", "DepthImages", "Odometry", "PersonDetections", "BagReport",
-           "BagError", "BagWarning", "read_laser", "read_depth", "read_odometry", "read_tf",
+__all__ = ["LaserScans", "DepthImages", "ColourImages", "PointClouds", "Odometry",
+           "PersonDetections", "BagReport", "BagError", "BagWarning", "read_laser", "read_depth",
+           "read_colour", "read_point_clouds", "read_odometry", "read_tf",
            "People", "read_people",
            "read_detections", "JointStates", "read_joint_states", "resample",
            "register_people_msgs", "write_bag", "topics", "beam_angles",
-           "LASER_SCAN", "IMAGE", "ODOMETRY", "TF_MESSAGE", "POSE_ARRAY",
+           "LASER_SCAN", "IMAGE", "POINT_CLOUD2", "ODOMETRY", "TF_MESSAGE", "POSE_ARRAY",
            "POSITION_MEASUREMENT_ARRAY", "JOINT_STATE", "MAX_RESAMPLE_SLOTS", "OUTLIER_GAP"]
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 IMAGE = "sensor_msgs/msg/Image"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+POINT_FIELD = "sensor_msgs/msg/PointField"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
@@ -178,6 +185,45 @@ class DepthImages(NamedTuple):
     mask: np.ndarray
     valid: np.ndarray
     report: BagReport | None = None
+
+
+class ColourImages(NamedTuple):
+    """Colour images of one topic.
+
+    Attributes:
+      times: [T] float64 seconds.
+      colour: [T, H, W, 3] float32 RGB in [0, 1] (the 8-bit value / 255; mono8: grey in the
+        three channels).
+      valid: [T] bool; report: `BagReport`.
+    """
+
+    times: np.ndarray
+    colour: np.ndarray
+    valid: np.ndarray
+    report: BagReport | None = None
+
+
+class PointClouds(NamedTuple):
+    """Point clouds of one topic (``sensor_msgs/PointCloud2``), N points per row.
+
+    Attributes:
+      times: [T] float64 seconds.
+      points: [T, N, 3] float32 (x, y, z) in the message's frame (0 where not ``mask``).
+      colours: [T, N, 3] float32 RGB in [0, 1], of every point read (masked or not; zeros if
+        the cloud has no ``rgb`` / ``rgba`` field, and for padding).
+      mask: [T, N] bool: the message's points with finite x, y, z; False for padding.
+      valid: [T] bool; report: `BagReport`.
+      image_shape: ``(height, width)`` when every message is an organised cloud (height > 1)
+        of that shape kept in its layout (point ``h * width + w`` is pixel (h, w)); else None.
+    """
+
+    times: np.ndarray
+    points: np.ndarray
+    colours: np.ndarray
+    mask: np.ndarray
+    valid: np.ndarray
+    report: BagReport | None = None
+    image_shape: tuple | None = None
 
 
 class Odometry(NamedTuple):
@@ -327,6 +373,112 @@ def read_depth(path, topic: str, *, rate: float | None = None, method: str = "bu
         return out
     grid, valid, (depth, mask) = _resample(report, times, depth, mask, rate=rate, method=method)
     return out._replace(times=grid, depth=depth, mask=mask, valid=valid)
+
+
+def read_colour(path, topic: str, *, rate: float | None = None, method: str = "bucket",
+                time_source: str = "header", typestore=None) -> ColourImages:
+    """Read ``sensor_msgs/Image`` colour images (rgb8, bgr8, rgba8, bgra8; mono8 as grey) as
+    RGB in [0, 1] (the 8-bit value / 255, alpha dropped).
+
+    The row step of each message is honoured. Other encodings raise `BagError` naming the
+    encoding; so does a change of image size.
+
+    Returns:
+      `ColourImages` with colour [T, H, W, 3] float32.
+
+    Example:
+      >>> rgb = read_colour("run.bag", "/camera/color/image_raw")
+      >>> rgb.colour.shape                            # (T, H, W, 3)
+    """
+    msgs, report = _read_topic(path, topic, (IMAGE,), time_source, typestore)
+    if not msgs:
+        raise _no_messages(IMAGE, topic, path, report)
+    H, W = int(msgs[0][1].height), int(msgs[0][1].width)
+    images = []
+    for i, (_, m) in enumerate(msgs):
+        if (int(m.height), int(m.width)) != (H, W):
+            raise BagError(f"{topic!r} in {path}: image {i} is {m.height}x{m.width}, the first "
+                           f"is {H}x{W}")
+        images.append(_colour_image(m, i, topic))
+    colour = np.stack(images)
+    times = np.array([t for t, _ in msgs], np.float64)
+    out = ColourImages(times, colour, np.ones(len(msgs), bool), report)
+    if rate is None:
+        return out
+    grid, valid, (colour,) = _resample(report, times, colour, rate=rate, method=method)
+    return out._replace(times=grid, colour=colour, valid=valid)
+
+
+def read_point_clouds(path, topic: str, *, max_points: int | None = None,
+                      rate: float | None = None, method: str = "bucket",
+                      time_source: str = "header", typestore=None) -> PointClouds:
+    """Read ``sensor_msgs/PointCloud2`` messages into fixed-shape arrays, in the message's frame.
+
+    Decoded with NumPy from each message's fields: ``x``, ``y``, ``z`` stored as FLOAT32 or
+    FLOAT64; the colour from an ``rgb`` or ``rgba`` field stored as FLOAT32 (PCL's packed
+    convention: the bits of ``0x00RRGGBB``, or ``0xAARRGGBB``) or UINT32 (zeros without one);
+    ``is_bigendian``, ``point_step`` and ``row_step`` (padded points and rows); organised clouds
+    (height > 1) are read row by row. A point is valid when x, y and z are finite (organised
+    clouds mark missing depth with NaN).
+
+    Rows hold N points: without ``max_points``, N is the largest message's height x width and
+    every message keeps its layout, padded at the end. With ``max_points``, N = ``max_points``;
+    a message of more points keeps its valid ones, in order, and one with more *valid* points
+    than ``max_points`` is a `BagError` (never truncated). ``image_shape`` is set when every
+    message is organised, of one shape, and kept in its layout.
+
+    Args:
+      path: ``.bag`` file or ROS 2 bag directory; topic: e.g. ``"/camera/depth/points"``.
+      max_points: N, points per row (>= 1), e.g. to share one compiled pipeline between bags.
+      rate, method: optional resampling (`resample`).
+      time_source: ``"header"`` or ``"bag"``; typestore: as `read_laser`.
+
+    Returns:
+      `PointClouds` with points [T, N, 3] float32.
+
+    Raises:
+      BagError: a missing x / y / z field, a field stored in an unsupported type, a message
+        whose bytes do not hold its points, more valid points than ``max_points``.
+
+    Example:
+      >>> clouds = read_point_clouds("run.bag", "/camera/depth/points")
+      >>> clouds.points.shape, clouds.mask.shape      # (T, N, 3), (T, N)
+    """
+    if max_points is not None and not (int(max_points) == max_points and max_points >= 1):
+        raise ValueError(f"max_points must be a positive integer or None; got {max_points!r}")
+    msgs, report = _read_topic(path, topic, (POINT_CLOUD2,), time_source, typestore)
+    if not msgs:
+        raise _no_messages(POINT_CLOUD2, topic, path, report)
+    decoded = [_cloud_points(m, i, topic) for i, (_, m) in enumerate(msgs)]
+    sizes = [xyz.shape[0] for xyz, _, _, _ in decoded]
+    N = max(sizes) if max_points is None else int(max_points)
+    T = len(msgs)
+    points = np.zeros((T, N, 3), np.float32)
+    colours = np.zeros((T, N, 3), np.float32)
+    mask = np.zeros((T, N), bool)
+    shapes = {shape for _, _, _, shape in decoded}
+    in_layout = True
+    for i, (xyz, rgb, ok, _) in enumerate(decoded):
+        if xyz.shape[0] > N:
+            count = int(ok.sum())
+            if count > N:
+                raise BagError(f"{topic!r} in {path}: cloud {i} has {count} valid points, more "
+                               f"than max_points={N}")
+            xyz, rgb, ok = xyz[ok], rgb[ok], ok[ok]
+            in_layout = False
+        n = xyz.shape[0]
+        points[i, :n] = np.where(ok[:, None], xyz, np.float32(0))
+        colours[i, :n] = rgb
+        mask[i, :n] = ok
+    shape = next(iter(shapes)) if len(shapes) == 1 else None
+    image_shape = shape if shape is not None and shape[0] > 1 and in_layout else None
+    times = np.array([t for t, _ in msgs], np.float64)
+    out = PointClouds(times, points, colours, mask, np.ones(T, bool), report, image_shape)
+    if rate is None:
+        return out
+    grid, valid, (points, colours, mask) = _resample(report, times, points, colours, mask,
+                                                     rate=rate, method=method)
+    return out._replace(times=grid, points=points, colours=colours, mask=mask, valid=valid)
 
 
 def read_odometry(path, topic: str, *, rate: float | None = None, method: str = "bucket",
@@ -843,8 +995,10 @@ def register_people_msgs(typestore):
 def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
               odometry: Odometry | None = None, detections: PersonDetections | None = None,
               depth: DepthImages | None = None, joints: JointStates | None = None,
+              clouds: PointClouds | None = None, colour: ColourImages | None = None,
               topics: dict | None = None,
               detections_type: str = POSE_ARRAY, depth_encoding: str = "32FC1",
+              colour_encoding: str = "rgb8",
               storage: str = "sqlite3", frames: dict | None = None, typestore=None,
               chunk_bytes: int | None = None, compression: str | None = None) -> Path:
     """Write records (e.g. a simulated recording) as a ROS 1 or ROS 2 bag.
@@ -852,20 +1006,28 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     Only rows with ``valid`` are written. Laser beams outside ``mask`` are written as ``inf``
     (no return); masked detections are left out; masked depths are written as 0 (16UC1) or NaN
     (32FC1). Odometry yaw becomes the quaternion :math:`(0, 0, \\sin(\\psi/2), \\cos(\\psi/2))`.
+    Point clouds are ``sensor_msgs/PointCloud2`` with x, y, z FLOAT32 and a packed FLOAT32
+    ``rgb`` (PCL's convention, 8 bits per channel, rounded): organised (height x width, NaN
+    where not ``mask``) when the record has an ``image_shape``, else one row of the valid
+    points. Colour images are 8 bits per channel, rounded (mono8: the mean of the channels).
 
     Args:
       path: new ``.bag`` file (version 1) or new directory (version 2); must not exist.
       version: 1 or 2.
-      laser, odometry, detections, depth, joints: records to write (any subset, at least
-        one); ``joints`` as ``sensor_msgs/JointState`` (e.g. the camera's pan angle).
+      laser, odometry, detections, depth, joints, clouds, colour: records to write (any
+        subset, at least one); ``joints`` as ``sensor_msgs/JointState`` (e.g. the camera's
+        pan angle), ``clouds`` (`PointClouds`) as ``sensor_msgs/PointCloud2``, ``colour``
+        (`ColourImages`) as ``sensor_msgs/Image``.
       topics: topic names, default ``{"laser": "/scan", "odometry": "/odom",
         "detections": "/people", "depth": "/camera/depth/image_raw",
-        "joints": "/joint_states"}``.
+        "joints": "/joint_states", "clouds": "/camera/depth/points",
+        "colour": "/camera/color/image_raw"}``.
       detections_type: `POSE_ARRAY` or `POSITION_MEASUREMENT_ARRAY`.
       depth_encoding: "32FC1" (metres) or "16UC1" (millimetres, rounded).
+      colour_encoding: "rgb8", "bgr8", "rgba8" (alpha 255), "bgra8" or "mono8".
       storage: ROS 2 storage, "sqlite3" or "mcap".
       frames: frame ids, default ``{"laser": "laser", "odom": "odom", "base": "base_link",
-        "camera": "camera_depth_optical_frame"}``.
+        "camera": "camera_depth_optical_frame"}`` (the camera's for depth, clouds and colour).
       typestore: ``rosbags`` type store (default: ROS 1 Noetic / ROS 2 Humble, plus
         people_msgs).
       chunk_bytes: ROS 1 chunk size (default rosbags' 1 MiB).
@@ -880,7 +1042,8 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
       no row to write; 0 beams, an empty image or no joint; arrays whose shapes do not agree
       (laser ranges / mask [T, B] with angles [B]; odometry pose / twist [T, 3]; detections xy
       [T, M, 2] with mask [T, M]; depth and mask [T, H, W]; joint positions [T, J] with J
-      names; valid [T]).
+      names; cloud points / colours [T, N, 3] with mask [T, N] and an image_shape of at most
+      N pixels; colour [T, H, W, 3]; valid [T]).
 
     Example:
       >>> write_bag("sim.bag", 1, laser=scans, odometry=odom)
@@ -898,16 +1061,20 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
                          f"{compression!r} for version {version}")
     if depth_encoding not in ("32FC1", "16UC1"):
         raise BagError(f"depth encoding {depth_encoding!r} is not supported (32FC1, 16UC1)")
+    if colour_encoding not in _COLOUR_ENCODINGS:
+        raise BagError(f"colour encoding {colour_encoding!r} is not supported "
+                       f"({', '.join(_COLOUR_ENCODINGS)})")
     streams = {"laser": laser, "odometry": odometry, "detections": detections, "depth": depth,
-               "joints": joints}
+               "joints": joints, "clouds": clouds, "colour": colour}
     if all(v is None for v in streams.values()):
-        raise ValueError("nothing to write: give laser, odometry, detections, depth and/or "
-                         "joints")
+        raise ValueError("nothing to write: give laser, odometry, detections, depth, joints, "
+                         "clouds and/or colour")
     for key, rec in streams.items():
         if rec is not None:
             _check_record(key, rec, version)
     names = {"laser": "/scan", "odometry": "/odom", "detections": "/people",
-             "depth": "/camera/depth/image_raw", "joints": "/joint_states"}
+             "depth": "/camera/depth/image_raw", "joints": "/joint_states",
+             "clouds": "/camera/depth/points", "colour": "/camera/color/image_raw"}
     names.update(topics or {})
     fr = {"laser": "laser", "odom": "odom", "base": "base_link",
           "camera": "camera_depth_optical_frame"}
@@ -918,7 +1085,7 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
         register_people_msgs(typestore)
     ts = typestore
     types = {"laser": LASER_SCAN, "odometry": ODOMETRY, "detections": detections_type,
-             "depth": IMAGE, "joints": JOINT_STATE}
+             "depth": IMAGE, "joints": JOINT_STATE, "clouds": POINT_CLOUD2, "colour": IMAGE}
     for key, rec in streams.items():
         if rec is not None and types[key] not in ts.types:
             raise BagError(f"message type {types[key]} is not in the type store"
@@ -940,6 +1107,12 @@ def write_bag(path, version: int = 1, *, laser: LaserScans | None = None,
     if joints is not None:
         for t, m in _joint_messages(make, joints, fr["base"]):
             messages.append((t, "joints", m))
+    if clouds is not None:
+        for t, m in _cloud_messages(make, clouds, fr["camera"]):
+            messages.append((t, "clouds", m))
+    if colour is not None:
+        for t, m in _colour_messages(make, colour, colour_encoding, fr["camera"]):
+            messages.append((t, "colour", m))
     messages.sort(key=lambda x: x[0])
     if version == 1:
         from rosbags.rosbag1 import Writer
@@ -1053,6 +1226,19 @@ def _check_record(key: str, rec, version: int):
         if J == 0 or len(rec.names) != J:
             raise ValueError(f"write_bag: joints.position has {J} columns and joints.names "
                              f"{len(rec.names)} names; give one name per column, at least one")
+    elif key == "clouds":
+        _, N, _ = shape("points", (T, None, 3))
+        shape("colours", (T, N, 3))
+        shape("mask", (T, N))
+        if rec.image_shape is not None:
+            H, W = (int(v) for v in rec.image_shape)
+            if not (H >= 1 and W >= 1 and H * W <= N):
+                raise ValueError(f"write_bag: clouds.image_shape {tuple(rec.image_shape)} "
+                                 f"must be (H >= 1, W >= 1) with H x W <= N = {N}")
+    elif key == "colour":
+        _, H, W, _ = shape("colour", (T, None, None, 3))
+        if H * W == 0:
+            raise ValueError(f"write_bag: colour images are empty ({H}x{W})")
 
 
 def _rows(rec):
@@ -1140,6 +1326,57 @@ def _depth_messages(make, rec: DepthImages, encoding, frame_id):
                        data=np.frombuffer(px.tobytes(), np.uint8))
 
 
+def _quantise8(colour):
+    """RGB in [0, 1] -> uint8 (rounded, clipped)."""
+    return np.round(np.clip(np.asarray(colour, np.float64), 0.0, 1.0) * 255).astype(np.uint8)
+
+
+def _colour_messages(make, rec: ColourImages, encoding, frame_id):
+    Image = make.T[IMAGE]
+    channels, order = _COLOUR_ENCODINGS[encoding]
+    for seq, i in enumerate(_rows(rec)):
+        t = _ns(rec.times[i])
+        q = _quantise8(rec.colour[i])
+        H, W = q.shape[:2]
+        if encoding == "mono8":
+            px = np.round(q.astype(np.float64).mean(-1)).astype(np.uint8)[..., None]
+        else:
+            px = np.full((H, W, channels), 255, np.uint8)
+            px[..., list(order)] = q
+        yield t, Image(header=make.header(t, frame_id, seq), height=H, width=W,
+                       encoding=encoding, is_bigendian=0, step=W * channels,
+                       data=np.frombuffer(px.tobytes(), np.uint8))
+
+
+_CLOUD_POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+
+
+def _cloud_messages(make, rec: PointClouds, frame_id):
+    PC2, PF = make.T[POINT_CLOUD2], make.T[POINT_FIELD]
+    fields = [PF(name=name, offset=4 * k, datatype=7, count=1)
+              for k, name in enumerate(("x", "y", "z", "rgb"))]
+    shape = rec.image_shape
+    for seq, i in enumerate(_rows(rec)):
+        t = _ns(rec.times[i])
+        pts = np.asarray(rec.points[i], np.float32)
+        ok = np.asarray(rec.mask[i], bool)
+        rgb = _quantise8(rec.colours[i]).astype(np.uint32)
+        if shape is not None:             # organised: every pixel, NaN where not valid
+            H, W = shape
+            pts, ok, rgb = pts[:H * W], ok[:H * W], rgb[:H * W]
+        else:                             # unorganised: the valid points
+            pts, rgb = pts[ok], rgb[ok]
+            H, W, ok = 1, int(pts.shape[0]), ok[ok]
+        buf = np.zeros(H * W, _CLOUD_POINT)
+        for k, name in enumerate("xyz"):
+            buf[name] = np.where(ok, pts[:, k], np.float32(np.nan))
+        buf["rgb"] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]   # PCL's packed float
+        yield t, PC2(header=make.header(t, frame_id, seq), height=H, width=W, fields=fields,
+                     is_bigendian=False, point_step=_CLOUD_POINT.itemsize,
+                     row_step=_CLOUD_POINT.itemsize * W,
+                     data=np.frombuffer(buf.tobytes(), np.uint8), is_dense=bool(ok.all()))
+
+
 def _depth_image(m, index, topic):
     enc = str(m.encoding)
     if enc in ("16UC1", "mono16"):
@@ -1157,6 +1394,85 @@ def _depth_image(m, index, topic):
     rows = data[:H * step].reshape(H, step)[:, :W * dtype.itemsize]
     px = np.ascontiguousarray(rows).view(dtype).reshape(H, W)
     return (px.astype(np.float64) * scale).astype(np.float32)
+
+
+# 8-bit colour encodings: (channels, the channel indices of R, G, B).
+_COLOUR_ENCODINGS = {"rgb8": (3, (0, 1, 2)), "bgr8": (3, (2, 1, 0)), "rgba8": (4, (0, 1, 2)),
+                     "bgra8": (4, (2, 1, 0)), "mono8": (1, (0, 0, 0))}
+
+
+def _colour_image(m, index, topic):
+    enc = str(m.encoding)
+    if enc not in _COLOUR_ENCODINGS:
+        raise BagError(f"{topic!r} image {index}: colour encoding {enc!r} is not supported "
+                       f"({', '.join(_COLOUR_ENCODINGS)})")
+    channels, order = _COLOUR_ENCODINGS[enc]
+    H, W, step = int(m.height), int(m.width), int(m.step)
+    data = np.asarray(m.data, np.uint8)
+    if step < W * channels or data.size < H * step:
+        raise BagError(f"{topic!r} image {index}: {data.size} bytes with row step {step} do not "
+                       f"hold {H}x{W} {enc} pixels")
+    px = data[:H * step].reshape(H, step)[:, :W * channels].reshape(H, W, channels)
+    return px[..., list(order)].astype(np.float32) / np.float32(255)
+
+
+# sensor_msgs/PointField datatypes: NumPy type and name.
+_POINT_TYPES = {1: ("i1", "INT8"), 2: ("u1", "UINT8"), 3: ("i2", "INT16"), 4: ("u2", "UINT16"),
+                5: ("i4", "INT32"), 6: ("u4", "UINT32"), 7: ("f4", "FLOAT32"),
+                8: ("f8", "FLOAT64")}
+
+
+def _cloud_points(m, index, topic):
+    """``(xyz [n, 3] float32, rgb [n, 3] float32 in [0, 1], finite [n], (height, width))`` of
+    one ``PointCloud2``, n = height x width, in the message's row-major point order."""
+    where = f"{topic!r} cloud {index}"
+    fields = {str(f.name): f for f in m.fields}
+    missing = [c for c in "xyz" if c not in fields]
+    if missing:
+        raise BagError(f"{where} has no {', '.join(missing)} field (fields: "
+                       f"{', '.join(fields) or 'none'})")
+    colour = "rgb" if "rgb" in fields else "rgba" if "rgba" in fields else None
+    H, W = int(m.height), int(m.width)
+    step, row_step = int(m.point_step), int(m.row_step)
+    order = ">" if m.is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for name, allowed in (("x", (7, 8)), ("y", (7, 8)), ("z", (7, 8)), (colour, (6, 7))):
+        if name is None:
+            continue
+        f = fields[name]
+        kind = int(f.datatype)
+        if kind not in allowed:
+            got = _POINT_TYPES.get(kind, (None, f"datatype {kind}"))[1]
+            want = " or ".join(_POINT_TYPES[k][1] for k in allowed)
+            raise BagError(f"{where}: field {name!r} is {got}; supported: {want}")
+        # A packed colour is read as its 32 bits whatever its declared type.
+        fmt = order + ("u4" if name == colour else _POINT_TYPES[kind][0])
+        if int(f.offset) + np.dtype(fmt).itemsize > step:
+            raise BagError(f"{where}: field {name!r} at offset {f.offset} runs past the point "
+                           f"step {step}")
+        names.append(name)
+        formats.append(fmt)
+        offsets.append(int(f.offset))
+    n = H * W
+    data = np.asarray(m.data, np.uint8)
+    if n and (row_step < W * step or data.size < H * row_step):
+        raise BagError(f"{where}: {data.size} bytes with point step {step} and row step "
+                       f"{row_step} do not hold {H}x{W} points")
+    if n == 0:
+        return (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32), np.zeros(0, bool),
+                (H, W))
+    raw = np.ascontiguousarray(data[:H * row_step].reshape(H, row_step)[:, :W * step])
+    rec = raw.reshape(n, step).view(np.dtype({"names": names, "formats": formats,
+                                              "offsets": offsets, "itemsize": step}))[:, 0]
+    with np.errstate(over="ignore", invalid="ignore"):   # FLOAT64 beyond float32: inf, masked
+        xyz = np.stack([rec["x"], rec["y"], rec["z"]], -1).astype(np.float32)
+    finite = np.all(np.isfinite(xyz), -1)
+    rgb = np.zeros((n, 3), np.float32)
+    if colour is not None:
+        v = rec[colour].astype(np.uint32)
+        rgb = (np.stack([(v >> 16) & 255, (v >> 8) & 255, v & 255], -1).astype(np.float32)
+               / np.float32(255))
+    return xyz, rgb, finite, (H, W)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -577,3 +577,221 @@ def test_cli_track_on_a_damaged_bag_prints_one_line_and_exits_2(written, tmp_pat
     err = capsys.readouterr().err
     assert err.startswith("jaxtrack track: ") and "damaged.bag" in err
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+# -- sensor_msgs/PointCloud2 and colour images ---------------------------------------------------
+
+CLOUD = "/camera/depth/points"
+
+
+def _cloud_bag(path, clouds, version=1):
+    """Clouds given as (fields [(name, offset, datatype)], is_bigendian, point_step, row_step,
+    height, width, data bytes)."""
+    ts = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
+    mk = bags._MessageMaker(ts, version)
+    PC2, PF = ts.types[bags.POINT_CLOUD2], ts.types[bags.POINT_FIELD]
+    if version == 1:
+        from rosbags.rosbag1 import Writer
+
+        w, ser = Writer(path), ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+
+        w, ser = Writer(path, version=9), ts.serialize_cdr
+    with w:
+        c = w.add_connection(CLOUD, bags.POINT_CLOUD2, typestore=ts)
+        for i, (fields, big, step, row_step, h, wd, data) in enumerate(clouds):
+            t = 10**9 * (i + 1)
+            m = PC2(header=mk.header(t, "cam", i), height=h, width=wd,
+                    fields=[PF(name=n, offset=o, datatype=d, count=1) for n, o, d in fields],
+                    is_bigendian=bool(big), point_step=step, row_step=row_step,
+                    data=np.frombuffer(data, np.uint8), is_dense=False)
+            w.write(c, t, ser(m, bags.POINT_CLOUD2))
+    return path
+
+
+def _points(n, rng, nan=()):
+    xyz = rng.uniform(-4, 4, (n, 3))
+    for k in nan:
+        xyz[k, k % 3] = np.nan
+    return xyz, rng.integers(0, 256, (n, 4)).astype(np.uint32)   # r, g, b, a
+
+
+def _cloud_records(rng):
+    """Three clouds built with NumPy: (message tuple, xyz [n, 3] float64, rgb8 [n, 3] or None)."""
+    out = []
+    # 1. float32 x, y, z and PCL's packed float rgb, little-endian, 4 padding bytes per point.
+    xyz, c = _points(5, rng, nan=(1,))
+    dt = np.dtype({"names": ["x", "y", "z", "rgb"], "formats": ["<f4"] * 4,
+                   "offsets": [0, 4, 8, 12], "itemsize": 20})
+    a = np.zeros(5, dt)
+    a["x"], a["y"], a["z"] = xyz.T
+    a["rgb"] = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
+    out.append(((([("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("rgb", 12, 7)]), 0, 20, 100, 1, 5,
+                 a.tobytes()), xyz.astype(np.float32), c[:, :3]))
+    # 2. float64 x, y, z and a uint32 rgba (alpha in the high byte), big-endian, fields in
+    #    another order.
+    xyz, c = _points(6, rng)
+    dt = np.dtype({"names": ["rgba", "z", "y", "x"], "formats": [">u4", ">f8", ">f8", ">f8"],
+                   "offsets": [0, 8, 16, 24], "itemsize": 32})
+    a = np.zeros(6, dt)
+    a["x"], a["y"], a["z"] = xyz.T
+    a["rgba"] = (c[:, 3] << 24) | (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+    out.append((([("rgba", 0, 6), ("z", 8, 8), ("y", 16, 8), ("x", 24, 8)], 1, 32, 192, 1, 6,
+                 a.tobytes()), xyz.astype(np.float32), c[:, :3]))
+    # 3. organised 3 x 4 without colour, NaN points, 5 padding bytes after each row.
+    xyz, _ = _points(12, rng, nan=(0, 5, 7))
+    rows = np.zeros((3, 4), np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")]))
+    rows["x"], rows["y"], rows["z"] = (v.reshape(3, 4) for v in xyz.T)
+    data = np.concatenate([rows.view(np.uint8).reshape(3, 48), np.full((3, 5), 7, np.uint8)], 1)
+    out.append((([("x", 0, 7), ("y", 4, 7), ("z", 8, 7)], 0, 12, 53, 3, 4, data.tobytes()),
+                xyz.astype(np.float32), None))
+    return out
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_point_cloud2_decoded_against_numpy(tmp_path, version):
+    records = _cloud_records(np.random.default_rng(5))
+    path = _cloud_bag(tmp_path / ("c.bag" if version == 1 else "c2"), [r[0] for r in records],
+                      version)
+    got = bags.read_point_clouds(path, CLOUD)
+    assert got.points.shape == (3, 12, 3) and got.image_shape is None   # mixed shapes
+    for i, (_, xyz, rgb) in enumerate(records):
+        n = xyz.shape[0]
+        ok = np.all(np.isfinite(xyz), -1)
+        np.testing.assert_array_equal(got.mask[i, :n], ok)
+        np.testing.assert_array_equal(got.points[i, :n], np.where(ok[:, None], xyz, 0))
+        want = (np.zeros((n, 3), np.float32) if rgb is None
+                else rgb.astype(np.float32) / np.float32(255))
+        np.testing.assert_array_equal(got.colours[i, :n], want)
+        assert not got.mask[i, n:].any() and not got.points[i, n:].any()  # padding
+    np.testing.assert_allclose(got.times, [1, 2, 3])
+    assert got.report.complete
+
+
+def test_point_cloud2_organised_max_points_and_errors(tmp_path):
+    rng = np.random.default_rng(6)
+    organised = _cloud_records(rng)[2][0]
+    path = _cloud_bag(tmp_path / "o.bag", [organised, organised])
+    got = bags.read_point_clouds(path, CLOUD)
+    assert got.image_shape == (3, 4) and got.mask.sum(1).tolist() == [9, 9]
+    # max_points: more points than N keep their valid ones, in order (the layout is lost).
+    small = bags.read_point_clouds(path, CLOUD, max_points=9)
+    assert small.image_shape is None and small.mask.all()
+    np.testing.assert_array_equal(small.points[0], got.points[0][got.mask[0]])
+    wide = bags.read_point_clouds(path, CLOUD, max_points=20)
+    assert wide.image_shape == (3, 4) and wide.points.shape == (2, 20, 3)
+    with pytest.raises(bags.BagError, match="cloud 0 has 9 valid points, more than max_points=8"):
+        bags.read_point_clouds(path, CLOUD, max_points=8)
+    with pytest.raises(ValueError, match="max_points must be a positive integer"):
+        bags.read_point_clouds(path, CLOUD, max_points=0)
+    fields, big, step, row_step, h, w, data = organised
+    cases = [
+        ([("x", 0, 7), ("y", 4, 7)], "cloud 0 has no z field"),
+        ([("x", 0, 3), ("y", 4, 7), ("z", 8, 7)], "field 'x' is INT16; supported: FLOAT32 or "
+                                                  "FLOAT64"),
+        ([*fields, ("rgb", 8, 2)], "field 'rgb' is UINT8; supported: UINT32 or FLOAT32"),
+        ([("x", 0, 7), ("y", 4, 7), ("z", 10, 7)], "runs past the point step 12"),
+    ]
+    for k, (bad, message) in enumerate(cases):
+        p = _cloud_bag(tmp_path / f"bad{k}.bag", [(bad, big, step, row_step, h, w, data)])
+        with pytest.raises(bags.BagError, match=message):
+            bags.read_point_clouds(p, CLOUD)
+    p = _cloud_bag(tmp_path / "short.bag", [(fields, big, step, row_step, h, w, data[:-10])])
+    with pytest.raises(bags.BagError, match="do not hold 3x4 points"):
+        bags.read_point_clouds(p, CLOUD)
+    # An empty cloud is a row of no points.
+    p = _cloud_bag(tmp_path / "empty.bag", [(fields, big, step, 0, 1, 0, b"")])
+    empty = bags.read_point_clouds(p, CLOUD)
+    assert empty.points.shape == (1, 0, 3) and empty.mask.shape == (1, 0)
+    with pytest.raises(bags.BagError, match="carries sensor_msgs/msg/PointCloud2"):
+        bags.read_depth(path, CLOUD)
+
+
+@pytest.mark.parametrize("kind", [k[0] for k in KINDS])
+def test_write_bag_point_clouds_roundtrip(tmp_path, kind):
+    rng = np.random.default_rng(7)
+    times = 5.0 + 0.1 * np.arange(3)
+    pts = rng.uniform(-3, 3, (3, 12, 3)).astype(np.float32)
+    mask = rng.uniform(size=(3, 12)) < 0.7
+    colours = rng.uniform(0, 1, (3, 12, 3)).astype(np.float32)
+    level = np.round(colours.astype(np.float64) * 255).astype(np.float32) / np.float32(255)
+    _, version, storage = next(k for k in KINDS if k[0] == kind)
+    for shape in ((3, 4), None):          # organised (NaN where masked), then the valid points
+        rec = bags.PointClouds(times, np.where(mask[..., None], pts, 0), colours, mask,
+                               np.ones(3, bool), None, shape)
+        p = tmp_path / f"{kind}{shape is None}{'.bag' if version == 1 else ''}"
+        got = bags.read_point_clouds(bags.write_bag(p, version, clouds=rec, storage=storage),
+                                     CLOUD)
+        np.testing.assert_allclose(got.times, times, rtol=0, atol=1e-9)
+        assert got.image_shape == shape
+        if shape is None:
+            for i in range(3):
+                n = mask[i].sum()
+                np.testing.assert_array_equal(got.points[i, :n], pts[i][mask[i]])
+                np.testing.assert_array_equal(got.colours[i, :n], level[i][mask[i]])
+                assert got.mask[i, :n].all() and not got.mask[i, n:].any()
+        else:
+            np.testing.assert_array_equal(got.mask, mask)
+            np.testing.assert_array_equal(got.points, rec.points)
+            np.testing.assert_array_equal(got.colours, level)
+    on_grid = bags.read_point_clouds(p, CLOUD, rate=5.0)
+    assert on_grid.points.shape[1:] == (mask.sum(1).max(), 3) and on_grid.valid.any()
+    with pytest.raises(ValueError, match=r"clouds.mask must be \[3, 12\]"):
+        bags.write_bag(tmp_path / "bad.bag", 1, clouds=rec._replace(mask=mask[:, :5]))
+    with pytest.raises(ValueError, match="image_shape"):
+        bags.write_bag(tmp_path / "bad.bag", 1, clouds=rec._replace(image_shape=(4, 4)))
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_colour_encodings_decoded_against_numpy(tmp_path, version):
+    rng = np.random.default_rng(8)
+    H, W, pad = 3, 4, 2
+    rgb = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)
+    alpha = rng.integers(0, 256, (H, W, 1)).astype(np.uint8)
+    grey = rng.integers(0, 256, (H, W)).astype(np.uint8)
+
+    def padded(a):
+        rows = a.reshape(H, -1)
+        return np.concatenate([rows, np.full((H, pad), 0xCD, np.uint8)], 1).tobytes()
+
+    imgs = [("rgb8", 0, W * 3, H, W, rgb.tobytes()),
+            ("bgr8", 0, W * 3 + pad, H, W, padded(rgb[..., ::-1])),
+            ("rgba8", 0, W * 4, H, W, np.concatenate([rgb, alpha], -1).tobytes()),
+            ("bgra8", 0, W * 4 + pad, H, W, padded(np.concatenate([rgb[..., ::-1], alpha], -1))),
+            ("mono8", 0, W, H, W, grey.tobytes())]
+    got = bags.read_colour(_image_bag(tmp_path / ("i.bag" if version == 1 else "i2"), imgs,
+                                      version), DEPTH)
+    want = rgb.astype(np.float32) / np.float32(255)
+    for i in range(4):
+        np.testing.assert_array_equal(got.colour[i], want)
+    np.testing.assert_array_equal(got.colour[4], np.repeat(grey[..., None], 3, -1)
+                                  .astype(np.float32) / np.float32(255))
+    bad = _image_bag(tmp_path / ("j.bag" if version == 1 else "j2"),
+                     [("rgb8", 0, W * 3, H, W, rgb.tobytes()),
+                      ("rgb16", 0, W * 6, H, W, bytes(H * W * 6))], version)
+    with pytest.raises(bags.BagError, match="image 1: colour encoding 'rgb16' is not supported"):
+        bags.read_colour(bad, DEPTH)
+    short = _image_bag(tmp_path / ("k.bag" if version == 1 else "k2"),
+                       [("rgb8", 0, W * 3, H, W, rgb.tobytes()[:-1])], version)
+    with pytest.raises(bags.BagError, match="do not hold 3x4 rgb8 pixels"):
+        bags.read_colour(short, DEPTH)
+
+
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "rgba8", "bgra8", "mono8"])
+def test_colour_images_roundtrip_through_write_bag(tmp_path, encoding):
+    rng = np.random.default_rng(9)
+    times = 1.0 + 0.1 * np.arange(2)
+    colour = rng.uniform(0, 1, (2, 3, 5, 3)).astype(np.float32)
+    if encoding == "mono8":
+        colour[:] = colour[..., :1]
+    rec = bags.ColourImages(times, colour, np.ones(2, bool))
+    for version in (1, 2):
+        p = bags.write_bag(tmp_path / f"{encoding}{'.bag' if version == 1 else ''}", version,
+                           colour=rec, colour_encoding=encoding)
+        got = bags.read_colour(p, "/camera/color/image_raw")
+        np.testing.assert_array_equal(
+            got.colour, np.round(colour.astype(np.float64) * 255).astype(np.float32)
+            / np.float32(255))
+    with pytest.raises(bags.BagError, match="colour encoding 'yuv422'"):
+        bags.write_bag(tmp_path / "x.bag", 1, colour=rec, colour_encoding="yuv422")

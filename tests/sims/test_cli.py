@@ -38,12 +38,15 @@ def test_humanoid_tunable_values_reach_the_run_and_bad_ones_are_rejected(capsys,
     monkeypatch.setattr(cli, "run_humanoid_reach", lambda *a, **kw: seen.update(kw))
     assert cli.main(["run", "humanoid-reach", "--lambda-x", "0.4", "--lambda-theta", "0.9",
                      "--position-noise", "0.041", "--temperature", "1.1", "--turn-prediction",
-                     "--heading-gain", "0.3", "--walkers", "2", "--planner", "preview-qp"]) == 0
+                     "--heading-gain", "0.3", "--walkers", "2", "--planner", "preview-qp",
+                     "--objects", "3", "--unknown-objects"]) == 0
     assert seen == {"lambda_x": 0.4, "lambda_theta": 0.9, "position_noise": 0.041,
                     "temperature": 1.1, "turn_prediction": True, "heading_gain": 0.3,
-                    "walkers": 2, "planner": "preview-qp"}
+                    "walkers": 2, "planner": "preview-qp", "objects": 3,
+                    "static_background": False}
     assert cli.main(["run", "humanoid-reach"]) == 0
     assert seen["walkers"] == 0 and seen["planner"] == "dcm"
+    assert seen["objects"] == 0 and seen["static_background"] is True
     assert seen["temperature"] is None and seen["lambda_x"] == 0.1
     assert seen["turn_prediction"] is False and seen["heading_gain"] == 0.5
     with pytest.raises(SystemExit):
