@@ -145,11 +145,11 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
     inside = valid & jnp.all((ijk >= 0) & (ijk < shape), -1)
     linear = (ijk[:, 0] * spec.shape[1] + ijk[:, 1]) * spec.shape[2] + ijk[:, 2]
     linear = jnp.where(inside, linear, total)                       # total: the discard bin
-    occupied = jnp.zeros(total + 1, bool).at[linear].set(True)[:total]
-    (cells,) = jnp.nonzero(occupied, size=capacity, fill_value=total)
+    rank, cells = _occupied_cells(spec, linear, capacity)
+    kept = inside & (rank < capacity)
     row = jnp.arange(capacity, dtype=jnp.int32)
     lookup = jnp.full(total + 1, -1, jnp.int32).at[cells].set(row)[:total]
-    point_voxel = jnp.where(inside, jnp.concatenate([lookup, jnp.full(1, -1, jnp.int32)])[linear], -1)
+    point_voxel = jnp.where(kept, rank, -1)
     seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
     counts = jax.ops.segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
     denom = jnp.maximum(counts, 1).astype(dtype)[:, None]
@@ -167,6 +167,62 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
                      counts=counts, cells=jnp.where(vmask[:, None], cell_ijk, -1), mask=vmask,
                      point_voxel=point_voxel.astype(jnp.int32), lookup=lookup,
                      num_dropped=num_dropped.astype(jnp.int32))
+
+
+_WORD_BITS = 24     # cells per packed word of `_occupied_cells` (exact in float32)
+
+
+def _occupied_cells(spec: GridSpec, linear: Array, capacity: int) -> tuple[Array, Array]:
+    """The occupied cells in cell-index order, as ``jnp.nonzero`` would give them, without a
+    prefix sum over the whole box (XLA's over a few hundred thousand cells took 4.7 of the
+    6.9 ms of a QVGA frame's voxelisation on a CPU).
+
+    Each column of cells along the last axis is stored as 24-bit words, one bit per cell; a
+    prefix sum of the words' bit counts (24x fewer entries) gives each word's first rank. A
+    point's rank adds the bits of its word below its cell; a row's cell is found by a binary
+    search of the words' ranks and the position of its bit in its word.
+
+    Args:
+      spec: the grid; linear: [N] int32 each point's cell, ``num_cells`` for none;
+      capacity: V.
+
+    Returns:
+      ``(rank [N], cells [V])``: each point's voxel row (anything where ``linear`` is
+      ``num_cells``), and each row's cell (``num_cells`` for empty rows).
+    """
+    s2 = spec.shape[2]
+    words = -(-s2 // _WORD_BITS)
+    width = words * _WORD_BITS                      # a column's cells, padded to whole words
+    cols = spec.shape[0] * spec.shape[1]
+    outside = linear >= spec.num_cells
+    col, z = linear // s2, linear % s2
+    padded = jnp.where(outside, cols * width, col * width + z)
+    occupied = jnp.zeros(cols * width + 1, jnp.float32).at[padded].set(1.0)[:cols * width]
+    # Packed by a float32 product: its sums of distinct powers of two below 2^24 are exact,
+    # and XLA runs it several times faster than an integer sum of shifted bits on a CPU.
+    bit = 2.0 ** np.arange(_WORD_BITS, dtype=np.float32)
+    packed = (occupied.reshape(cols * words, _WORD_BITS) @ bit).astype(jnp.uint32)
+    counts = jax.lax.population_count(packed).astype(jnp.int32)
+    ends = jnp.cumsum(counts)                                             # inclusive
+    first = ends - counts
+    word = jnp.where(outside, 0, col * words + z // _WORD_BITS)
+    below = (jnp.left_shift(jnp.uint32(1), (z % _WORD_BITS).astype(jnp.uint32))
+             - jnp.uint32(1))
+    rank = first[word] + jax.lax.population_count(packed[word] & below).astype(jnp.int32)
+    # Row r: the word holding the r-th occupied cell, then the bit of that word whose count of
+    # set bits below it is r - first.
+    r = jnp.arange(capacity, dtype=jnp.int32)
+    w = jnp.searchsorted(ends, r, side="right").astype(jnp.int32)
+    found = w < cols * words
+    w = jnp.minimum(w, cols * words - 1)
+    bits = packed[w][:, None]                                             # [V, 1]
+    pos = jnp.arange(_WORD_BITS, dtype=jnp.uint32)
+    lower = jax.lax.population_count(bits & (jnp.left_shift(jnp.uint32(1), pos) - jnp.uint32(1)))
+    hit = ((jnp.right_shift(bits, pos) & jnp.uint32(1)) == 1) & (
+        lower.astype(jnp.int32) == (r - first[w])[:, None])
+    z_row = (w % words) * _WORD_BITS + jnp.argmax(hit, axis=1).astype(jnp.int32)
+    cells = jnp.where(found, (w // words) * s2 + z_row, spec.num_cells)
+    return rank, cells
 
 
 def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
@@ -221,14 +277,16 @@ def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
     r = int(math.ceil(radius / spec.size - 1e-9))
     offsets = np.array([o for o in itertools.product(range(-r, r + 1), repeat=3) if any(o)],
                        np.int32)                                    # [K, 3]
-    keep = grid.mask if keep is None else grid.mask & keep
+    subset = keep is not None
+    keep = grid.mask & keep if subset else grid.mask
     nb = grid.cells[:, None, :] + offsets[None]                     # [V, K, 3]
     inside = jnp.all((nb >= 0) & (nb < jnp.asarray(spec.shape)), -1)
     linear = (nb[..., 0] * spec.shape[1] + nb[..., 1]) * spec.shape[2] + nb[..., 2]
     rows = jnp.where(inside, grid.lookup[jnp.where(inside, linear, 0)], -1)
     ok = (rows >= 0) & keep[:, None]
     safe = jnp.maximum(rows, 0)
-    ok &= keep[safe]
+    if subset:   # (the lookup holds occupied rows only: without a subset they all take part)
+        ok &= keep[safe]
     d2 = jnp.sum((grid.points[safe] - grid.points[:, None, :]) ** 2, -1)
     ok &= d2 <= radius ** 2
     return jnp.where(ok, rows, -1)

@@ -93,6 +93,31 @@ def test_capacity_overflow_keeps_the_first_cells_and_counts_the_rest():
     np.testing.assert_array_equal(grid.point_voxel, [0, 1, 2, 3, -1, -1])
 
 
+@pytest.mark.parametrize("shape", [(7, 5, 1), (6, 4, 24), (5, 6, 25), (4, 3, 50), (3, 3, 70)])
+def test_voxel_rows_follow_the_cell_index_for_any_column_height(shape):
+    """The rows are the occupied cells in cell-index order (`jnp.nonzero`'s), whatever the
+    grid's last axis (packed in words of 24 cells), with and without capacity overflow."""
+    rng = np.random.default_rng(sum(shape))
+    spec = GridSpec(0.1, (0.0, 0.0, 0.0), shape)
+    pts = rng.uniform(-0.05, 0.1 * np.asarray(shape) + 0.05, (400, 3)).astype(np.float32)
+    ijk = np.floor(pts / np.float32(0.1)).astype(np.int64)
+    inside = np.all((ijk >= 0) & (ijk < shape), 1)
+    linear = np.ravel_multi_index(tuple(ijk[inside].T), shape)
+    occupied = np.unique(linear)
+    for capacity in (len(occupied) + 3, max(len(occupied) // 2, 1)):
+        grid = voxelise(spec, jnp.asarray(pts), capacity=capacity)
+        rows = np.asarray(grid.cells)[np.asarray(grid.mask)]
+        np.testing.assert_array_equal(np.ravel_multi_index(tuple(rows.T), shape),
+                                      occupied[:capacity])
+        want = np.full(len(pts), -1)
+        row_of = {c: i for i, c in enumerate(occupied[:capacity])}
+        want[inside] = [row_of.get(c, -1) for c in linear]
+        np.testing.assert_array_equal(np.asarray(grid.point_voxel), want)
+        lookup = np.asarray(grid.lookup)
+        assert np.sum(lookup >= 0) == min(capacity, len(occupied))
+        np.testing.assert_array_equal(lookup[occupied[:capacity]], np.arange(len(rows)))
+
+
 def test_empty_cloud_is_a_valid_input():
     grid = voxelise(GridSpec(), jnp.zeros((0, 3)), capacity=8)
     assert not bool(grid.mask.any()) and int(grid.num_dropped) == 0
