@@ -162,6 +162,9 @@ def main(argv: list[str] | None = None) -> int:
                           "windowed one that holds the heading through short steps")
     svc.add_argument("--pan", action="store_true",
                      help="approach: the RGB-D camera on its pan unit, turned to the person")
+    svc.add_argument("--reverse", action="store_true",
+                     help="approach: the robot may drive backwards down the field, its front "
+                          "and sensors towards the person")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -432,7 +435,8 @@ def main(argv: list[str] | None = None) -> int:
 
         run_service(args.experiment, args.episodes, args.duration, args.perception,
                     args.compare_sensors, interest, args.out, args.seed, args.batch_size,
-                    args.animate, heading_filter=args.heading_filter, pan=args.pan)
+                    args.animate, heading_filter=args.heading_filter, pan=args.pan,
+                    reverse=args.reverse)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

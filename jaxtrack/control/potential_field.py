@@ -185,9 +185,13 @@ def gradient_step(params: Params, robot_xy: Array, person_pose: Array, interest,
     return robot_xy - step_size * gradient(params, robot_xy, person_pose, interest)
 
 
+REVERSE_COS = 0.3   # `approach_velocity`'s band (cosine) where reversing is by the smaller turn
+
+
 def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, interest,
                       person_vel: Array | None = None, *, gain=1.0, v_max=0.6,
-                      omega_max=1.5, heading_gain=2.0, face_speed=0.02) -> Array:
+                      omega_max=1.5, heading_gain=2.0, face_speed=0.02,
+                      reverse: bool = False) -> Array:
     r"""Gradient following as unicycle commands u = (v, omega) [2] (the "approach" behaviour).
 
     :math:`\dot x_d = \dot p - c \nabla f(r)`; the heading target is the direction of
@@ -197,12 +201,21 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
     :math:`v = \min(\|\dot x_d\| \max(\cos e, 0), v_{max})`,
     :math:`\omega = \operatorname{clip}(k_\theta e, \pm\omega_{max})`.
 
+    With ``reverse``, the robot may also drive backwards along :math:`\dot x_d`, its heading
+    target then the direction of :math:`-\dot x_d + v_f \hat u` and :math:`v \le 0`: always
+    when :math:`\dot x_d` leads away from the person (:math:`\cos(\dot x_d, \hat u) < -0.3`),
+    never when it leads to them (:math:`> 0.3`), and in between whichever needs the smaller
+    turn. A unicycle that backs away from the person or
+    goes round them then keeps its front, and the sensors on it, towards them (seed 002's
+    omnidirectional robot can face the person whatever its motion).
+
     Args:
       params: `Params`. robot_pose: [3] (x, y, theta). person_pose: [3] (x, y, heading).
       interest: PI in [0, 1].
       person_vel: optional [2] person velocity (world), fed forward.
       gain: :math:`c`, m/s per unit gradient (1/m). v_max (m/s), omega_max (rad/s): limits.
       heading_gain: :math:`k_\theta` (1/s). face_speed: :math:`v_f` (m/s).
+      reverse: allow driving backwards (static).
 
     Returns:
       [2] (v, omega).
@@ -226,11 +239,25 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
     pv = jnp.zeros(2, dtype) if person_vel is None else jnp.asarray(person_vel, dtype)
     desired = pv - gain * _gradient(params, robot_pose[:2], person_pose, interest)
     to_person = person_pose[:2] - robot_pose[:2]
-    aim = desired + face_speed * to_person / jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12)
-    aim_safe = jnp.where(jnp.sum(aim ** 2) > 0, aim, jnp.array([1.0, 0.0], dtype))
-    e = wrap(jnp.arctan2(aim_safe[1], aim_safe[0]) - robot_pose[2])
+    facing = face_speed * to_person / jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12)
+
+    def heading_error(aim):
+        aim = jnp.where(jnp.sum(aim ** 2) > 0, aim, jnp.array([1.0, 0.0], dtype))
+        return wrap(jnp.arctan2(aim[1], aim[0]) - robot_pose[2])
+
+    e = heading_error(desired + facing)
     speed = jnp.sqrt(jnp.sum(desired ** 2) + 1e-24)
     v = jnp.minimum(speed * jnp.maximum(jnp.cos(e), 0.0), v_max)
+    if reverse:
+        e_back = heading_error(-desired + facing)
+        # Leaving the person (cos < -0.3 between the motion and the way to them): backwards;
+        # approaching (cos > 0.3): forwards; in between (going round them) the smaller turn,
+        # so that the robot's own heading holds the choice and the two do not alternate.
+        along = jnp.sum(desired * to_person) / (
+            speed * jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12))
+        back = (along < -REVERSE_COS) | ((along < REVERSE_COS) & (jnp.abs(e_back) < jnp.abs(e)))
+        e = jnp.where(back, e_back, e)
+        v = jnp.where(back, -jnp.minimum(speed * jnp.maximum(jnp.cos(e_back), 0.0), v_max), v)
     w = jnp.clip(heading_gain * e, -omega_max, omega_max)
     return jnp.stack([v, w]).astype(dtype)
 

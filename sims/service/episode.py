@@ -124,6 +124,8 @@ class ServiceConfig:
         walls and furniture dropped) also on the estimator's candidates.
       feed_forward: ``approach``: add the person's estimated velocity to the descent
         (`jaxtrack.control.potential_field.approach_velocity`'s ``person_vel``).
+      reverse: ``approach``: the unicycle may drive backwards down the field, keeping its
+        front (laser, RGB-D) towards the person (`approach_velocity`'s ``reverse``).
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
@@ -149,6 +151,7 @@ class ServiceConfig:
     heading_slow: float = 1.0
     heading_filter: str = "ar"
     feed_forward: bool = False
+    reverse: bool = False
     map_filter_estimator: bool = False
     pan: pan_tilt.PanTiltConfig | None = None
     heading_window: float = 2.0
@@ -634,7 +637,8 @@ def make_rollout(config: ServiceConfig):
         u = potential_field.approach_velocity(params.field, sensed.odom_pose, person, pi,
                                               p[2:] if config.feed_forward else None,
                                               gain=params.approach_gain, v_max=config.v_max,
-                                              omega_max=config.omega_max)
+                                              omega_max=config.omega_max,
+                                              reverse=config.reverse)
         camera = s.pan
         if config.pan is not None:
             # the RGB-D camera on its pan unit keeps the person in view while the unicycle

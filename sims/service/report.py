@@ -90,14 +90,14 @@ def paired_difference(a, b, z: float = 1.96):
 
 @functools.lru_cache(maxsize=16)
 def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
-             pan=False):
+             pan=False, reverse=False):
     from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
 
     cfg = ep.ServiceConfig(_scene(), experiment=experiment, perception=perception,
                            compare_sensors=compare_sensors, interest=interest,
                            duration=duration, heading_filter=heading_filter,
-                           pan=pan_tilt.PanTiltConfig() if pan else None)
+                           pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse)
     return cfg, ep.make_episode(cfg)
 
 
@@ -112,7 +112,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 perception: str = "all", compare_sensors: bool = False,
                 interest: float | None = 0.5, out: Path | None = None, seed: int = 0,
                 batch_size: int | None = None, animate: bool = False, progress: bool = True,
-                stream=sys.stdout, heading_filter: str = "ar", pan: bool = False) -> dict:
+                stream=sys.stdout, heading_filter: str = "ar", pan: bool = False,
+                reverse: bool = False) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -127,7 +128,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
 
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration),
-                               heading_filter, pan)
+                               heading_filter, pan, bool(reverse))
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
@@ -136,6 +137,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     title = (f"service robot, experiment {experiment}: {episodes} episodes x {duration:.0f} s, "
              f"perception {perception}" + (f", person interest {pi}, heading filter "
                                            f"{heading_filter}" + (", pan unit" if pan else "")
+                                           + (", reversing" if reverse else "")
                                            if experiment == "approach" else ""))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)

@@ -159,6 +159,66 @@ def test_approach_velocity_respects_limits_and_feeds_the_person_velocity_forward
     assert u[0] == pytest.approx(0.5, abs=0.03) and abs(u[1]) < 0.1
 
 
+@jax.jit
+def approach_reversing(pose, interest):
+    def body(pose, _):
+        u = pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON), interest, gain=10.0,
+                                 reverse=True)
+        off = jnp.abs(wrap_np(jnp.arctan2(*(PERSON[:2] - pose[:2])[::-1]) - pose[2]))
+        return follower.unicycle_step(pose, u, 0.05), off
+    return jax.lax.scan(body, pose, None, length=1600)
+
+
+def wrap_np(a):
+    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
+
+def test_reversing_backs_away_facing_the_person_and_settles_at_the_same_minimum():
+    # Too close for PI 0 (whose minimum is 2 m ahead), facing the person: forward only, the
+    # robot must turn its back on them to leave; reversing, it backs off still facing them.
+    q_min, _ = grid_minimum(0.0)
+    xy = to_world([0.6, 0.0])
+    pose = jnp.asarray([xy[0], xy[1], PERSON[2] + np.pi])            # facing the person
+    fwd = np.asarray(pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON), 0.0, gain=10.0))
+    back = np.asarray(pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON), 0.0, gain=10.0,
+                                           reverse=True))
+    assert fwd[0] == 0.0 and abs(fwd[1]) > 1.0                        # turns on the spot
+    assert back[0] < -0.3 and abs(back[1]) < 0.1                      # backs straight off
+    end, off = approach_reversing(pose, 0.0)
+    assert np.linalg.norm(to_person(np.asarray(end[:2])) - q_min) < 0.1
+    # the person stays in front of the robot (bearing off its heading below 90 deg throughout)
+    assert np.max(np.asarray(off)) < np.pi / 2
+
+
+def test_reversing_backs_away_drives_towards_and_still_descends():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        pose = jnp.asarray(rng.uniform([-3, -3, -np.pi], [3, 3, np.pi]))
+        for interest in (0.0, 0.5, 1.0):
+            fwd = np.asarray(pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON), interest,
+                                                  gain=10.0, v_max=0.6))
+            back = np.asarray(pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON),
+                                                   interest, gain=10.0, v_max=0.6,
+                                                   reverse=True))
+            assert abs(back[0]) <= 0.6 + 1e-9
+            grad = np.asarray(gradient(PARAMS, pose[:2], jnp.asarray(PERSON), interest))
+            to_p = PERSON[:2] - np.asarray(pose[:2])
+            cos = -grad @ to_p / (np.linalg.norm(grad) * np.linalg.norm(to_p) + 1e-30)
+            if cos > pf.REVERSE_COS:          # towards the person: forwards, unchanged
+                np.testing.assert_allclose(back, fwd)
+            elif cos < -pf.REVERSE_COS:       # away from them: backwards
+                assert back[0] <= 0.0
+            else:                             # round them: the smaller turn
+                assert abs(back[1]) <= abs(fwd[1]) + 1e-9
+            # the motion never climbs the field: v (cos, sin)(theta) . -grad >= 0 ...
+            heading = np.array([np.cos(pose[2]), np.sin(pose[2])])
+            if np.linalg.norm(grad) * 10.0 > 0.2:     # ... where the facing term is small
+                assert back[0] * heading @ -grad >= -1e-9
+            # a forward command is the forward-only one
+            if back[0] > 0:
+                np.testing.assert_allclose(back, fwd)
+
+
 @pytest.mark.parametrize("dtype,rtol", [(jnp.float64, 1e-6), (jnp.float32, 2e-2)])
 def test_gradient_matches_central_finite_differences(dtype, rtol):
     rng = np.random.default_rng(1)

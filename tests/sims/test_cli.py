@@ -161,6 +161,19 @@ def test_rgbd_people_passes_its_arguments_and_names_the_ablations(monkeypatch, t
     assert names == ("full", "no sub-clustering") and all(n in crowd.ABLATIONS for n in names)
 
 
+def test_service_approach_options_reach_the_run(monkeypatch):
+    import sims.service.report as service_report
+
+    seen = {}
+    monkeypatch.setattr(service_report, "run_service", lambda *a, **k: seen.update(args=a, kw=k))
+    assert cli.main(["run", "service", "--experiment", "approach", "--interest", "0.5",
+                     "--heading-filter", "windowed", "--pan", "--reverse", "--episodes", "4"]) == 0
+    assert seen["args"][:2] == ("approach", 4) and seen["args"][5] == 0.5
+    assert seen["kw"] == {"heading_filter": "windowed", "pan": True, "reverse": True}
+    assert cli.main(["run", "service", "--experiment", "approach"]) == 0
+    assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False}
+
+
 def test_humanoid_routes_is_a_run_scene_with_its_own_help(capsys):
     with pytest.raises(SystemExit) as exc:
         cli.main(["run", "humanoid-routes", "--help"])
