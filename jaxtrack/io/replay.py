@@ -37,7 +37,8 @@ from jaxtrack.tracking import user
 
 Array = jax.Array
 
-__all__ = ["Tracks", "track", "track_batch", "track_bag", "write_top_view", "write_animation"]
+__all__ = ["Tracks", "track", "track_batch", "track_bag", "write_top_view", "top_view",
+           "write_animation"]
 
 
 class Tracks(NamedTuple):
@@ -580,27 +581,40 @@ def track_bag(bag, laser_topic, out, *, detections_topic: str | None = None,
 
 def write_top_view(path, tracks: Tracks, odometry: bags.Odometry | None = None, title=""):
     """Top view of the tracks (one colour per id), the user estimate and the odometry path."""
+    def user(ax):
+        ax.plot(tracks.user[:, 0], tracks.user[:, 1], "k:", lw=1.5, label="user estimate")
+
+    top_view(path, tracks.ids, tracks.pos, tracks.mask, odometry, title, after=user)
+
+
+def top_view(path, ids, pos, mask, odometry: bags.Odometry | None = None, title="", *,
+             before=None, after=None) -> None:
+    """A top-view PNG of tracks ``ids`` [T, K], ``pos`` [T, K, 2], ``mask`` [T, K] (one colour
+    per id, labelled at its last position) and the odometry path; ``before`` / ``after``
+    (callables of the axes) draw under / over the tracks."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 6))
+    if before is not None:
+        before(ax)
     cmap = plt.get_cmap("tab20")
-    ids = np.unique(tracks.ids[tracks.mask]) if tracks.mask.any() else []
-    for k, i in enumerate(ids):
-        sel = tracks.mask & (tracks.ids == i)
-        xy = tracks.pos[sel]
+    track_ids = np.unique(ids[mask]) if mask.any() else []
+    for k, i in enumerate(track_ids):
+        xy = pos[mask & (ids == i)]
         ax.plot(xy[:, 0], xy[:, 1], ".-", ms=2, lw=0.8, color=cmap(k % 20))
         ax.annotate(str(int(i)), xy[-1], fontsize=6, color=cmap(k % 20))
-    ax.plot(tracks.user[:, 0], tracks.user[:, 1], "k:", lw=1.5, label="user estimate")
+    if after is not None:
+        after(ax)
     if odometry is not None:
         p = np.asarray(odometry.pose)[np.asarray(odometry.valid, bool)]
         ax.plot(p[:, 0], p[:, 1], "C0", lw=2, label="robot (odometry)")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m] (odometry frame)")
     ax.set_ylabel("y [m]")
-    ax.set_title(title or f"{len(ids)} tracks")
+    ax.set_title(title or f"{len(track_ids)} tracks")
     ax.legend(loc="best", fontsize=8)
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -529,27 +529,10 @@ def write_top_view(path, tracks: RGBDTracks, odometry: bags.Odometry | None = No
     Example:
       >>> write_top_view("top_view.png", track_rgbd(clouds, cam))
     """
-    import matplotlib
+    from jaxtrack.io.replay import top_view
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    def detections(ax):
+        det = tracks.detections[tracks.det_mask]
+        ax.plot(det[:, 0], det[:, 1], ".", ms=2, color="0.6", label="detections")
 
-    fig, ax = plt.subplots(figsize=(7, 6))
-    det = tracks.detections[tracks.det_mask]
-    ax.plot(det[:, 0], det[:, 1], ".", ms=2, color="0.6", label="detections")
-    cmap = plt.get_cmap("tab20")
-    ids = np.unique(tracks.ids[tracks.mask]) if tracks.mask.any() else []
-    for k, i in enumerate(ids):
-        xy = tracks.pos[tracks.mask & (tracks.ids == i)]
-        ax.plot(xy[:, 0], xy[:, 1], ".-", ms=2, lw=0.8, color=cmap(k % 20))
-        ax.annotate(str(int(i)), xy[-1], fontsize=6, color=cmap(k % 20))
-    if odometry is not None:
-        p = np.asarray(odometry.pose)[np.asarray(odometry.valid, bool)]
-        ax.plot(p[:, 0], p[:, 1], "C0", lw=2, label="robot (odometry)")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m] (odometry frame)")
-    ax.set_ylabel("y [m]")
-    ax.set_title(title or f"{len(ids)} tracks")
-    ax.legend(loc="best", fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    top_view(path, tracks.ids, tracks.pos, tracks.mask, odometry, title, before=detections)
