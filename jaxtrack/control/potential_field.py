@@ -239,7 +239,8 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
     pv = jnp.zeros(2, dtype) if person_vel is None else jnp.asarray(person_vel, dtype)
     desired = pv - gain * _gradient(params, robot_pose[:2], person_pose, interest)
     to_person = person_pose[:2] - robot_pose[:2]
-    facing = face_speed * to_person / jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12)
+    distance = jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12)
+    facing = face_speed * to_person / distance
 
     def heading_error(aim):
         aim = jnp.where(jnp.sum(aim ** 2) > 0, aim, jnp.array([1.0, 0.0], dtype))
@@ -253,8 +254,7 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
         # Leaving the person (cos < -0.3 between the motion and the way to them): backwards;
         # approaching (cos > 0.3): forwards; in between (going round them) the smaller turn,
         # so that the robot's own heading holds the choice and the two do not alternate.
-        along = jnp.sum(desired * to_person) / (
-            speed * jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12))
+        along = jnp.sum(desired * to_person) / (speed * distance)
         back = (along < -REVERSE_COS) | ((along < REVERSE_COS) & (jnp.abs(e_back) < jnp.abs(e)))
         e = jnp.where(back, e_back, e)
         v = jnp.where(back, -jnp.minimum(speed * jnp.maximum(jnp.cos(e_back), 0.0), v_max), v)

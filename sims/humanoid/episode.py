@@ -301,15 +301,14 @@ def make_episode(config: EpisodeConfig):
         truth = gait.torso_pose(g, gp)
         q = gait.qpos(sc, g, gp)
         xpos, xmat = scene_mod.pose_geoms(sc, q)
+        stored = objects if config.static_background else None
         occ = [_walker_geoms(walkers, dtype)] if walkers is not None else []
-        occ = _join_occluders(occ + ([objects] if objects is not None else []))
+        occ = _join_occluders(occ + ([objects] if objects is not None and stored is None
+                                     else []))
         pts, mask = sensor.robot_point_cloud(key, sc, xpos, xmat, truth, k_win, bg,
                                              config.noise, FLOOR_THRESHOLD, dtype=dtype,
-                                             occluders=occ)
+                                             occluders=occ, static=stored)
         mask = mask & (pts[:, 2] <= config.max_point_height)
-        if objects is not None and config.static_background:
-            heights = sensor.static_heights(sc, objects, truth[:2], k_win, dtype)
-            mask = mask & (pts[:, 2] > heights + FLOOR_THRESHOLD)
         score = jnp.where(mask, pts[:, 2], -jnp.inf)
         _, idx = jax.lax.top_k(score, n_pts)
         window = ((pts, *sensor.window_origin(sc.camera, truth[:2], k_win)) if config.record

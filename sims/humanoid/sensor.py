@@ -327,8 +327,13 @@ def static_heights(scene: Scene, static: Occluders, centre: Array, size: int,
       >>> mask = mask & (pts[:, 2] > h + 0.06)
     """
     row, col = window_origin(scene.camera, lax.stop_gradient(centre), size)
-    depth = _render_occluders(scene, static, row, col, size, dtype).reshape(-1)
-    height = jnp.asarray(scene.camera.position[2], dtype) - depth
+    return _heights(scene, _render_occluders(scene, static, row, col, size, dtype))
+
+
+def _heights(scene: Scene, depth: Array) -> Array:
+    """[K*K] heights of a window's depths [K, K] seen by the zenithal camera (0 for none)."""
+    depth = depth.reshape(-1)
+    height = jnp.asarray(scene.camera.position[2], depth.dtype) - depth
     return lax.stop_gradient(jnp.where(jnp.isfinite(depth), jnp.maximum(height, 0.0), 0.0))
 
 
@@ -343,7 +348,8 @@ def point_cloud(key: Array, scene: Scene, window: Window, noise: DepthNoise = De
 def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: Array,
                       size: int, background_depth: Array, noise: DepthNoise = DepthNoise(),
                       floor_threshold=0.06, dtype=jnp.float32,
-                      occluders: Occluders | None = None) -> tuple[Array, Array]:
+                      occluders: Occluders | None = None,
+                      static: Occluders | None = None) -> tuple[Array, Array]:
     r"""Noisy, floor-removed point cloud of the robot's window, differentiable in its pose.
 
     The values are those of `render_window` (centred on ``pose[:2]``) followed by
@@ -362,6 +368,9 @@ def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: 
       noise: `DepthNoise`; floor_threshold: floor-removal height (m).
       occluders: `Occluders` (people walking by) rendered in the window too, in front of the
         robot where nearer the camera; None: none.
+      static: `Occluders` in the camera's stored background image (objects on the floor):
+        rendered like ``occluders``, and their points removed with the floor's
+        (`static_heights`); None: none.
 
     Returns:
       ``(points [K*K, 3], mask [K*K])``.
@@ -386,13 +395,20 @@ def robot_point_cloud(key: Array, scene: Scene, xpos: Array, xmat: Array, pose: 
                         background_depth, dtype)
     bg = lax.dynamic_slice(jnp.asarray(background_depth, dtype), (win.row, win.col),
                            (size, size))
-    if occluders is not None:
-        other = _render_occluders(scene, occluders, win.row, win.col, size, dtype)
+    other = (None if occluders is None else
+             _render_occluders(scene, occluders, win.row, win.col, size, dtype))
+    if static is not None:
+        static_depth = _render_occluders(scene, static, win.row, win.col, size, dtype)
+        other = static_depth if other is None else jnp.minimum(other, static_depth)
+    if other is not None:
         on_robot = (win.depth < jnp.minimum(bg, other)).reshape(-1)
         win = win._replace(depth=jnp.minimum(win.depth, other))
     else:
         on_robot = (win.depth < bg).reshape(-1)
     pts, mask = point_cloud(key, scene, win, noise, floor_threshold)
+    if static is not None:
+        # background subtraction against the stored image (`static_heights`)
+        mask = mask & (pts[:, 2] > _heights(scene, static_depth) + floor_threshold)
     moved = (pts - centre) @ rot.T + centre + shift
     return jnp.where(on_robot[:, None], moved, pts), mask
 

@@ -96,10 +96,10 @@ def test_a_box_beside_the_robot_shows_its_top_in_the_cloud():
     box = sensor.Occluders(np.array([6]), jnp.asarray([[0.06, 0.06, 0.15]]),
                            jnp.asarray([[1.25, 0.6, 0.15]]), jnp.eye(3)[None])
 
-    def cloud(occ):
+    def cloud(occ, static=None):
         return jax.jit(lambda: sensor.robot_point_cloud(
             jax.random.PRNGKey(0), sc, xpos, xmat, truth, k, bg, sensor.DepthNoise(dropout=0.0),
-            occluders=occ))()
+            occluders=occ, static=static))()
 
     pts0, mask0 = map(np.asarray, cloud(None))
     pts1, mask1 = map(np.asarray, cloud(box))
@@ -113,6 +113,10 @@ def test_a_box_beside_the_robot_shows_its_top_in_the_cloud():
     robot = np.linalg.norm(pts0[:, :2] - np.asarray(pose[:2]), axis=1) < 0.15
     np.testing.assert_array_equal(mask1[robot], mask0[robot])
     np.testing.assert_allclose(pts1[robot & mask0], pts0[robot & mask0])
+    # Stored in the background image, the box is background: the cloud is the empty room's.
+    pts2, mask2 = map(np.asarray, cloud(None, box))
+    np.testing.assert_array_equal(mask2, mask0)
+    np.testing.assert_allclose(pts2[mask0], pts0[mask0])
 
 
 def test_a_stored_background_holds_the_boxes_heights():
