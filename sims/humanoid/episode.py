@@ -455,11 +455,11 @@ def floor_object_layout(key, start, target, num: int) -> sensor.Occluders:
 
 def footprint_distance(objects: sensor.Occluders, xy: Array) -> Array:
     """[T] least distance (m) of points ``xy`` [T, 2] to the footprints of upright boxes
-    `sensor.Occluders` (0 inside one)."""
+    `sensor.Occluders` (0 inside one; inf without boxes)."""
     rel = xy[:, None, :] - objects.xpos[None, :, :2]                       # [T, G, 2]
     local = jnp.einsum("tgi,gij->tgj", rel, objects.xmat[:, :2, :2])       # R^T (p - c)
     outside = jnp.maximum(jnp.abs(local) - objects.sizes[None, :, :2], 0.0)
-    return jnp.min(jnp.linalg.norm(outside, axis=-1), axis=-1)
+    return jnp.min(jnp.linalg.norm(outside, axis=-1), axis=-1, initial=jnp.inf)
 
 
 def _join_occluders(parts) -> sensor.Occluders | None:

@@ -81,6 +81,12 @@ def test_the_footprint_distance_is_the_polygon_distance():
     want = np.array([min(_polygon_distance(p, poly) for poly in polys) for p in xy])
     np.testing.assert_allclose(got, want, atol=2e-6)
     assert np.all(got[-3:] == 0.0) and np.sum(want == 0.0) >= 3
+    # No boxes: every point is infinitely far from one; no points: no distances.
+    none = episode.floor_object_layout(jax.random.PRNGKey(1), jnp.zeros(3),
+                                       jnp.asarray([1.0, 0.0, 0.0]), 0)
+    assert none.sizes.shape == (0, 3)
+    assert np.all(np.isinf(np.asarray(episode.footprint_distance(none, jnp.asarray(xy)))))
+    assert episode.footprint_distance(occ, jnp.zeros((0, 2))).shape == (0,)
 
 
 def test_a_box_beside_the_robot_shows_its_top_in_the_cloud():
