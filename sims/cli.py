@@ -157,14 +157,22 @@ def main(argv: list[str] | None = None) -> int:
                           "compare their MOTA with all sensors'")
     svc.add_argument("--interest", default="0.5",
                      help="approach: the person interest (0-1), or 'estimated'")
-    svc.add_argument("--heading-filter", choices=("ar", "windowed"), default="ar",
-                     help="approach: seed 002's AR heading filter on the velocity, or the "
-                          "windowed one that holds the heading through short steps")
+    svc.add_argument("--heading-filter", choices=("ar", "windowed", "sustained"),
+                     default="ar",
+                     help="approach: seed 002's AR heading filter on the velocity, the "
+                          "windowed one that holds the heading through short steps, or the "
+                          "sustained one that also holds it through steps in a row")
     svc.add_argument("--pan", action="store_true",
                      help="approach: the RGB-D camera on its pan unit, turned to the person")
     svc.add_argument("--reverse", action="store_true",
                      help="approach: the robot may drive backwards down the field, its front "
                           "and sensors towards the person")
+    svc.add_argument("--settle", type=int, default=0, metavar="ITERATIONS",
+                     help="approach: drive to where the field's gradient flow settles (found "
+                          "with this many descent steps a frame) instead of along the gradient")
+    svc.add_argument("--still-at-end", type=float, default=0.0, metavar="SECONDS",
+                     help="approach: nobody starts a step in the last SECONDS, so the final "
+                          "pose is judged once the person has stood still that long")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -428,6 +436,8 @@ def main(argv: list[str] | None = None) -> int:
             if not 0.0 <= interest <= 1.0:
                 parser.error(f"--interest must be a number in [0, 1] or 'estimated'; got "
                              f"{args.interest!r}")
+        if args.settle < 0 or not 0.0 <= args.still_at_end <= args.duration:
+            parser.error("--settle must be >= 0 and --still-at-end in [0, --duration]")
         if args.out is not None:
             _check_writable(parser, args.out)
         _import_mjx_quietly()
@@ -436,7 +446,8 @@ def main(argv: list[str] | None = None) -> int:
         run_service(args.experiment, args.episodes, args.duration, args.perception,
                     args.compare_sensors, interest, args.out, args.seed, args.batch_size,
                     args.animate, heading_filter=args.heading_filter, pan=args.pan,
-                    reverse=args.reverse)
+                    reverse=args.reverse, settle_iterations=args.settle,
+                    still_at_end=args.still_at_end)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

@@ -57,6 +57,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
+from jax import lax
 
 from jaxtrack import _checks, geometry
 from jaxtrack.angles import wrap
@@ -64,7 +66,7 @@ from jaxtrack.angles import wrap
 Array = jax.Array
 
 __all__ = ["INTIMATE", "PERSONAL", "SOCIAL", "Params", "potential", "gradient",
-           "gradient_step", "approach_velocity"]
+           "gradient_step", "settle_point", "approach_velocity"]
 
 INTIMATE = 0.45
 """Hall's intimate-zone radius (m), seed 002 II-C."""
@@ -188,10 +190,64 @@ def gradient_step(params: Params, robot_xy: Array, person_pose: Array, interest,
 REVERSE_COS = 0.3   # `approach_velocity`'s band (cosine) where reversing is by the smaller turn
 
 
+def settle_point(params: Params, robot_xy: Array, person_pose: Array, interest, *,
+                 iterations: int = 60, max_step=0.05, min_curvature=0.01) -> Array:
+    r"""Where the gradient flow of the field from ``robot_xy`` settles: its local minimum.
+
+    ``iterations`` saddle-free Newton steps,
+    :math:`x \leftarrow x - V\,\mathrm{diag}(1/\max(|\lambda_i|, \mu))\,V^\top \nabla f(x)`
+    with :math:`H = V \mathrm{diag}(\lambda) V^\top` the field's 2 x 2 Hessian, each clipped
+    to ``max_step`` (m) and shortened by optax's backtracking (Armijo) line search until
+    :math:`f` decreases enough. The field's valleys are nearly flat across the person's
+    heading (curvature 0.007 / m^2 at PI = 0), where plain gradient steps crawl; the
+    curvature scaling crosses them in a step, and taking :math:`|\lambda|` keeps the step
+    downhill where the field curves down. The clip keeps every step shorter than the
+    narrowest Gaussian of the field (0.1 m), so the point follows the flow into the robot's
+    own basin rather than jumping over the person into another. (Optax has the line search
+    and the clip but no Newton direction for a function this small, hence the direction
+    here.)
+
+    Args:
+      params: `Params`. robot_xy: [2] the start. person_pose: [3] (x, y, heading).
+      interest: PI in [0, 1].
+      iterations: steps (static). max_step: m. min_curvature: :math:`\mu` (1/m^2).
+
+    Returns:
+      [2] the settled point (at most ``iterations * max_step`` from the start).
+
+    Example:
+      >>> settle_point(Params.create(), jnp.array([3.0, 1.0]), jnp.zeros(3), 1.0)  # ~(0.52, 0)
+    """
+    _check_params(params)
+    _checks.check_shape("robot_xy", robot_xy, (2,), "(x, y)")
+    _checks.check_finite("robot_xy", robot_xy)
+    _check_person(person_pose, interest)
+    xy, person_pose, interest = _as_arrays(robot_xy, person_pose, interest)
+
+    def f(x):
+        return _potential(params, x, person_pose, interest)
+
+    opt = optax.chain(optax.clip_by_global_norm(max_step),
+                      optax.scale_by_backtracking_linesearch(max_backtracking_steps=15))
+    mu = jnp.asarray(min_curvature, xy.dtype)
+
+    def body(_, carry):
+        x, state = carry
+        value, grad = jax.value_and_grad(f)(x)
+        curvature, axes = jnp.linalg.eigh(jax.hessian(f)(x))
+        direction = -(axes @ ((axes.T @ grad) / jnp.maximum(jnp.abs(curvature), mu)))
+        updates, state = opt.update(direction, state, x, value=value, grad=grad, value_fn=f)
+        return optax.apply_updates(x, updates), state
+
+    x, _ = lax.fori_loop(0, int(iterations), body, (xy, opt.init(xy)))
+    return x
+
+
 def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, interest,
                       person_vel: Array | None = None, *, gain=1.0, v_max=0.6,
                       omega_max=1.5, heading_gain=2.0, face_speed=0.02,
-                      reverse: bool = False) -> Array:
+                      reverse: bool = False, settle_iterations: int = 0,
+                      target: Array | None = None) -> Array:
     r"""Gradient following as unicycle commands u = (v, omega) [2] (the "approach" behaviour).
 
     :math:`\dot x_d = \dot p - c \nabla f(r)`; the heading target is the direction of
@@ -205,9 +261,20 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
     target then the direction of :math:`-\dot x_d + v_f \hat u` and :math:`v \le 0`: always
     when :math:`\dot x_d` leads away from the person (:math:`\cos(\dot x_d, \hat u) < -0.3`),
     never when it leads to them (:math:`> 0.3`), and in between whichever needs the smaller
-    turn. A unicycle that backs away from the person or
+    turn, by a margin growing with the cosine: backwards iff
+    :math:`|e_{back}| - |e| < -(\pi / 0.3)\cos(\dot x_d, \hat u)`. A unicycle that backs
+    away from the person or
     goes round them then keeps its front, and the sensors on it, towards them (seed 002's
     omnidirectional robot can face the person whatever its motion).
+
+    With ``settle_iterations`` > 0, the robot drives to where the gradient flow settles
+    instead (`settle_point`, that many iterations): :math:`\dot x_d = \dot p + c\,(x^* - r)`,
+    ``gain`` :math:`c` then in 1/s. The field's gradient is tiny in its flat valleys, so
+    following it leaves the robot short of the minimum for tens of seconds; the settled point
+    is the same minimum (seed 002's pose), reached at the robot's own speed. A caller may
+    pass that point as ``target`` instead (from `settle_point`, or the robot's own position
+    to stand and face the person: a unicycle chasing a point that the person estimate's noise
+    moves by centimetres turns to and fro, so a caller parks it with some hysteresis).
 
     Args:
       params: `Params`. robot_pose: [3] (x, y, theta). person_pose: [3] (x, y, heading).
@@ -216,6 +283,8 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
       gain: :math:`c`, m/s per unit gradient (1/m). v_max (m/s), omega_max (rad/s): limits.
       heading_gain: :math:`k_\theta` (1/s). face_speed: :math:`v_f` (m/s).
       reverse: allow driving backwards (static).
+      settle_iterations: `settle_point` iterations (static); 0 follows the gradient itself.
+      target: optional [2] point to drive to, instead of the gradient or ``settle_iterations``.
 
     Returns:
       [2] (v, omega).
@@ -237,7 +306,14 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
     robot_pose, person_pose, interest = _as_arrays(robot_pose, person_pose, interest)
     dtype = robot_pose.dtype
     pv = jnp.zeros(2, dtype) if person_vel is None else jnp.asarray(person_vel, dtype)
-    desired = pv - gain * _gradient(params, robot_pose[:2], person_pose, interest)
+    if target is None and settle_iterations:
+        target = settle_point(params, robot_pose[:2], person_pose, interest,
+                              iterations=settle_iterations)
+    if target is not None:
+        _checks.check_shape("target", target, (2,), "(x, y)")
+        desired = pv + gain * (jnp.asarray(target, dtype) - robot_pose[:2])
+    else:
+        desired = pv - gain * _gradient(params, robot_pose[:2], person_pose, interest)
     to_person = person_pose[:2] - robot_pose[:2]
     distance = jnp.sqrt(jnp.sum(to_person ** 2) + 1e-12)
     facing = face_speed * to_person / distance
@@ -253,9 +329,12 @@ def approach_velocity(params: Params, robot_pose: Array, person_pose: Array, int
         e_back = heading_error(-desired + facing)
         # Leaving the person (cos < -0.3 between the motion and the way to them): backwards;
         # approaching (cos > 0.3): forwards; in between (going round them) the smaller turn,
-        # so that the robot's own heading holds the choice and the two do not alternate.
+        # so that the robot's own heading holds the choice. The turns are compared against a
+        # margin that grows continuously with the cosine (pi at +-0.3), not against hard
+        # bands: a robot near the edge of a band would otherwise flip between backing and
+        # turning at every frame.
         along = jnp.sum(desired * to_person) / (speed * distance)
-        back = (along < -REVERSE_COS) | ((along < REVERSE_COS) & (jnp.abs(e_back) < jnp.abs(e)))
+        back = jnp.abs(e_back) - jnp.abs(e) < -(jnp.pi / REVERSE_COS) * along
         e = jnp.where(back, e_back, e)
         v = jnp.where(back, -jnp.minimum(speed * jnp.maximum(jnp.cos(e_back), 0.0), v_max), v)
     w = jnp.clip(heading_gain * e, -omega_max, omega_max)

@@ -30,7 +30,12 @@ section 5.4). The motion between two poses is decomposed into a rotation
 :math:`\alpha_3 \delta_{trans}^2 + \alpha_4 (\delta_{rot1}^2 + \delta_{rot2}^2)`,
 :math:`\alpha_1 \delta_{rot2}^2 + \alpha_2 \delta_{trans}^2` (standard deviations proportional
 to the motion). Backward motion is decomposed with a negative translation (so reversing does
-not read as a half turn).
+not read as a half turn). Below ``MIN_TRANSLATION`` (1 cm per step) the noise is that of a
+pure rotation, :math:`\delta_{rot1} = 0` and :math:`\delta_{rot2} = \Delta\theta`, as in
+ROS's AMCL: a robot turning on the spot slides its centre by fractions of a millimetre, in
+any direction, and the decomposition would otherwise read that as two turns of up to 180 deg
+and give the step a yaw noise of several degrees. The increment itself stays exact (with
+all alphas 0, integrating it gives the true pose).
 """
 
 from __future__ import annotations
@@ -49,8 +54,8 @@ from jaxtrack.angles import wrap
 
 Array = jax.Array
 
-__all__ = ["RGBDConfig", "RGBDDetections", "OdometryConfig", "detect", "visible",
-           "odometry", "integrate", "accumulate"]
+__all__ = ["RGBDConfig", "RGBDDetections", "OdometryConfig", "MIN_TRANSLATION", "detect",
+           "visible", "odometry", "integrate", "accumulate"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +97,10 @@ _RGBD_DATA = ("fov", "min_range", "max_range", "position_std", "miss_prob", "fal
               "colour_std", "person_radius", "occlusion_threshold")
 jax.tree_util.register_dataclass(RGBDConfig, data_fields=list(_RGBD_DATA),
                                  meta_fields=["max_false", "occlusion_samples"])
+
+
+MIN_TRANSLATION = 0.01
+"""Translation per step (m) below which `odometry`'s noise is that of a turn on the spot."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -301,11 +310,15 @@ def odometry(key: Array, cfg: OdometryConfig, pose_prev: Array, pose: Array) -> 
     trans = jnp.where(moved, jnp.where(backward, -dist, dist), 0.0)
     rot2 = wrap(pose[2] - pose_prev[2] - rot1)
 
+    # the noise's rotations: a turn on the spot is all rot2 (module docstring)
+    spot = dist2 < MIN_TRANSLATION ** 2
+    r1 = jnp.where(spot, 0.0, rot1)
+    r2 = jnp.where(spot, wrap(pose[2] - pose_prev[2]), rot2)
     e = jax.random.normal(key, (3,), dtype)
     a1, a2, a3, a4 = (jnp.asarray(getattr(cfg, f"alpha{i}"), dtype) for i in (1, 2, 3, 4))
-    rot1_n = rot1 + _std(a1 * rot1 ** 2 + a2 * trans ** 2) * e[0]
-    trans_n = trans + _std(a3 * trans ** 2 + a4 * (rot1 ** 2 + rot2 ** 2)) * e[1]
-    rot2_n = rot2 + _std(a1 * rot2 ** 2 + a2 * trans ** 2) * e[2]
+    rot1_n = rot1 + _std(a1 * r1 ** 2 + a2 * trans ** 2) * e[0]
+    trans_n = trans + _std(a3 * trans ** 2 + a4 * (r1 ** 2 + r2 ** 2)) * e[1]
+    rot2_n = rot2 + _std(a1 * r2 ** 2 + a2 * trans ** 2) * e[2]
     return jnp.stack([trans_n * jnp.cos(rot1_n), trans_n * jnp.sin(rot1_n),
                       wrap(rot1_n + rot2_n)])
 

@@ -72,7 +72,9 @@ __all__ = ["ServiceConfig", "ServiceParams", "Frame", "PERCEPTION", "make_params
            "build_scene", "HEADING_FILTERS", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE"]
 
 PERCEPTION = ("all", "ceiling", "robot", "truth")
-HEADING_FILTERS = ("ar", "windowed")
+HEADING_FILTERS = ("ar", "windowed", "sustained")
+HEADING_SEGMENTS = 3
+"""Pieces of the sustained heading filter's window (`windowed_heading_step`'s segments)."""
 INTIMATE, PERSONAL = costmap.INTIMATE, costmap.PERSONAL
 GOAL_TOLERANCE = 0.25
 MOT_THRESHOLD = 0.5
@@ -110,6 +112,9 @@ class ServiceConfig:
         field refined after people appeared across the way would lead the robot into them
         until the next full solve.
       settle: seconds the robot stands still at the start while its tracks confirm.
+      still_at_end: seconds at the end of the episode in which nobody starts a step, so that
+        a final pose is judged once the person has stood still that long (a step in the last
+        second moves the person 0.3 m; no robot is back in place by the end).
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
@@ -117,7 +122,10 @@ class ServiceConfig:
         "windowed" (`jaxtrack.filters.heading.windowed_heading_step`): the same equations on
         the mean velocity over ``heading_window`` seconds, the heading held while the person
         has moved less than ``heading_min_distance`` (m) over it, so that a step backwards or
-        sideways does not turn it.
+        sideways does not turn it; or "sustained": the windowed filter that also needs each
+        quarter of the window to cover a quarter of that distance the same way, so that two
+        steps in a row, a step after a walk, or a jump of the estimate do not turn it either.
+        ``heading_min_distance`` None: 0.5 m windowed, 0.8 m sustained.
       pan: ``approach``: the RGB-D camera's pan unit (`jaxtrack.control.pan_tilt`), servoed to
         the estimated person, or None (the camera looks ahead).
       map_filter_estimator: ``approach``: the map filter (detections outside the flat or in
@@ -126,6 +134,14 @@ class ServiceConfig:
         (`jaxtrack.control.potential_field.approach_velocity`'s ``person_vel``).
       reverse: ``approach``: the unicycle may drive backwards down the field, keeping its
         front (laser, RGB-D) towards the person (`approach_velocity`'s ``reverse``).
+      settle_iterations: ``approach``: drive to where the field's gradient flow settles
+        (`potential_field.settle_point`, this many iterations a frame; the approach gain then
+        in 1/s) instead of along the gradient itself; 0: the gradient.
+      park: ``approach``, with ``settle_iterations``: (arrive, leave) in m. Closer than
+        arrive to the settled point the robot parks, standing and turning to face the person,
+        until the point is more than leave away (the person moved); None: it never parks, and
+        chases the point as the person estimate's noise moves it (turning to and fro, which
+        drifts the odometry frame the person's heading is kept in).
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
@@ -148,14 +164,17 @@ class ServiceConfig:
     sweeps: int = 10
     replan_every: int = 5
     settle: float = 1.0
+    still_at_end: float = 0.0
     heading_slow: float = 1.0
     heading_filter: str = "ar"
     feed_forward: bool = False
     reverse: bool = False
+    settle_iterations: int = 0
+    park: tuple[float, float] | None = None
     map_filter_estimator: bool = False
     pan: pan_tilt.PanTiltConfig | None = None
     heading_window: float = 2.0
-    heading_min_distance: float = 0.5
+    heading_min_distance: float | None = None
     person_q: float = 0.5
     robot_radius: float = 0.3
     safety_margin: float = 0.1
@@ -175,6 +194,8 @@ class ServiceConfig:
             raise ValueError(f"interest must be in [0, 1] or None; got {self.interest}")
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise ValueError(f"duration must be > 0; got {self.duration}")
+        if not 0.0 <= self.still_at_end <= self.duration:
+            raise ValueError(f"still_at_end must be in [0, duration]; got {self.still_at_end}")
         if not 0.05 <= self.cell <= 0.5:
             raise ValueError(f"cell must be in [0.05, 0.5] m; got {self.cell}")
         if self.replan_every < 1 or self.sweeps < 1:
@@ -182,9 +203,20 @@ class ServiceConfig:
         if self.heading_filter not in HEADING_FILTERS:
             raise ValueError(f"unknown heading_filter {self.heading_filter!r}; choose one of "
                              f"{HEADING_FILTERS}")
-        if not (self.heading_window >= self.control_dt and self.heading_min_distance >= 0):
+        if self.park is not None and not 0 < self.park[0] <= self.park[1]:
+            raise ValueError(f"park must be (arrive, leave) with 0 < arrive <= leave; got "
+                             f"{self.park}")
+        if not (self.heading_window >= self.control_dt
+                and (self.heading_min_distance is None or self.heading_min_distance >= 0)):
             raise ValueError("heading_window must be >= one frame and heading_min_distance "
                              ">= 0")
+
+    @property
+    def min_heading_distance(self) -> float:
+        """``heading_min_distance``, or its default for ``heading_filter``."""
+        if self.heading_min_distance is not None:
+            return float(self.heading_min_distance)
+        return 0.8 if self.heading_filter == "sustained" else 0.5
 
     @property
     def num_frames(self) -> int:
@@ -316,6 +348,7 @@ class State(NamedTuple):
     ids: Array
     person_heading: heading_filter.WindowedHeading
     pan: pan_tilt.PanState
+    parked: Array
 
 
 class Frame(NamedTuple):
@@ -390,6 +423,7 @@ def make_rollout(config: ServiceConfig):
     P = sc.num_people
     approach = exp == "approach"
     settle_frames = int(round(config.settle / dt))
+    still_from = config.num_frames - int(round(config.still_at_end / dt))
     estimator = user.robot_frame_kf(_kf_config(config))
     groups = ([config.perception] if config.perception != "truth" else ["all"])
     if config.compare_sensors:
@@ -417,7 +451,7 @@ def make_rollout(config: ServiceConfig):
                             heading_filter.windowed_heading_init(
                                 jnp.arctan2(pose[1] - ppl.pos[0, 1], pose[0] - ppl.pos[0, 0]),
                                 ppl.pos[0], window),
-                            pan_tilt.init(dtype))
+                            pan_tilt.init(dtype), jnp.asarray(False))
 
     def in_free_space(zs):
         """[N] map-frame points inside the flat and off its walls and furniture."""
@@ -426,7 +460,8 @@ def make_rollout(config: ServiceConfig):
         return inside & jnp.isfinite(static[cell[:, 0], cell[:, 1]])
 
     def world_step(key, s: State):
-        ppl = people_mod.step(key, s.people, s.robot, dt)
+        ppl = s.people._replace(steps=s.people.steps & (s.t < still_from))
+        ppl = people_mod.step(key, ppl, s.robot, dt)
         data = scene_mod.robot_step(sc, s.data, s.u, max(1, round(dt / sc.dt)))
         return ppl, data, scene_mod.robot_pose(data).astype(dtype)
 
@@ -617,11 +652,12 @@ def make_rollout(config: ServiceConfig):
         p = e.user
         heading = e.user_heading
         person_heading = s.person_heading
-        if config.heading_filter == "windowed" and config.perception != "truth":
+        if config.heading_filter != "ar" and config.perception != "truth":
             # the person's heading from their displacement over the window (odometry frame;
             # at the start: facing the robot, as seed 002 assumes of a person it finds)
             person_heading = heading_filter.windowed_heading_step(
-                s.person_heading, p[:2], dt, heading_params, config.heading_min_distance)
+                s.person_heading, p[:2], dt, heading_params, config.min_heading_distance,
+                segments=HEADING_SEGMENTS if config.heading_filter == "sustained" else 1)
             heading = person_heading.heading
         if config.interest is None:
             feats = person_interest.encounter_features(
@@ -632,20 +668,32 @@ def make_rollout(config: ServiceConfig):
         else:
             pi = s.interest
         person = jnp.append(p[:2], heading)
+        target, parked = None, s.parked
+        if config.settle_iterations and config.park is not None:
+            here = sensed.odom_pose[:2]
+            target = potential_field.settle_point(params.field, here, person, pi,
+                                                  iterations=config.settle_iterations)
+            away = jnp.sqrt(jnp.sum((target - here) ** 2))
+            arrive, leave = config.park
+            parked = (away < arrive) | (s.parked & (away < leave))
+            target = jnp.where(parked, here, target)
         # the person's velocity is fed forward: the field moves with them, and a step
         # would otherwise leave the robot behind until the gradient caught up
         u = potential_field.approach_velocity(params.field, sensed.odom_pose, person, pi,
                                               p[2:] if config.feed_forward else None,
                                               gain=params.approach_gain, v_max=config.v_max,
                                               omega_max=config.omega_max,
-                                              reverse=config.reverse)
+                                              reverse=config.reverse,
+                                              settle_iterations=config.settle_iterations,
+                                              target=target)
         camera = s.pan
         if config.pan is not None:
             # the RGB-D camera on its pan unit keeps the person in view while the unicycle
             # goes round them (seed 002's omnidirectional Robotino could face them instead)
             rel = geometry.to_frame(sensed.odom_pose, p[:2])
             camera = pan_tilt.servo(config.pan, s.pan, jnp.arctan2(rel[1], rel[0]), dt)
-        return est_state, e._replace(user_heading=heading), pi, u, (person_heading, camera)
+        return (est_state, e._replace(user_heading=heading), pi, u,
+                (person_heading, camera, parked))
 
     def frame(s: State, key, setup, params, full):
         ks = jax.random.split(key, 7)
@@ -654,7 +702,7 @@ def make_rollout(config: ServiceConfig):
         K = _TRACKER.capacity
         if approach:
             tracks, extra = s.tracks, s.extra_tracks
-            est_state, e, pi, u, (person_heading, camera) = approach_behaviour(
+            est_state, e, pi, u, (person_heading, camera, parked) = approach_behaviour(
                 s, ks[5], sensed, ppl, params, pose)
             dist = s.dist
             est_world = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose,
@@ -670,7 +718,7 @@ def make_rollout(config: ServiceConfig):
             hyp_mask = jnp.zeros((1, K), bool).at[0, 0].set(True)
         else:
             est_state, pi, person_heading = s.estimator, s.interest, s.person_heading
-            camera = s.pan
+            camera, parked = s.pan, s.parked
             tracks, *extra = track_groups((s.tracks,) + s.extra_tracks, dets, params)
             extra = tuple(extra)
             u, done, st, goal, target, dist = navigate(s, pose, tracks, ppl, setup, params, full)
@@ -684,7 +732,7 @@ def make_rollout(config: ServiceConfig):
         u = jnp.where(s.t < settle_frames, 0.0, u)
         new = State(data, ppl, pose, u, sensing_state, odom, tracks, extra, est_state, pi, done,
                     dist, s.t + 1, jnp.where(st.mask, st.heading, 0.0).astype(dtype), tracks.id,
-                    person_heading, camera)
+                    person_heading, camera, parked)
         rec = Frame(pose, u, done, ppl.pos, ppl.heading, ppl.mask, ppl.role, hyp_pos, hyp_ids,
                     hyp_mask, jnp.where(st.mask, st.status, -1), st.heading, goal, target, pi)
         return new, rec

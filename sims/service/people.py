@@ -12,10 +12,11 @@ Every person has a *role* and a short route of waypoints:
   are, at the front of the seat, for the laser);
 - `WAITER`: walks to a point of the hand-over area, then stands there facing the way it came.
 
-A person with ``steps`` set takes, with probability ``step_rate`` per second, a 1 s step of
-``step_speed`` (0.3 m/s) backwards or to either side while keeping their heading: the motion
-that turns a velocity-based heading around and for which seed 002's adaptive heading filter
-exists. Seated people never step.
+A person with ``steps`` set takes, with probability ``step_rate`` per second while standing, a
+1 s step of ``step_speed`` (0.3 m/s) backwards or to either side while keeping their heading:
+the motion that turns a velocity-based heading around and for which seed 002's adaptive
+heading filter exists ("the person stands still, and might even move slightly backwards").
+Walkers and waiters step only once at their place; seated people never step.
 
 The state converts to the following scene's `sims.following.pedestrians.PedestrianState`
 (`as_pedestrians`), so the laser, the RGB-D detector and the MJX mocap bodies of
@@ -107,8 +108,17 @@ def step(key: Array, people: People, robot_pose: Array, dt) -> People:
     dtype = people.pos.dtype
     P = people.pos.shape[0]
     k_start, k_dir = jax.random.split(key)
-    # The occasional step.
+    # Where the route stands.
+    idx = jnp.minimum(people.leg, people.route_len - 1)
+    target = jnp.take_along_axis(people.route, idx[:, None, None], 1)[:, 0]
+    direction, dist = _unit(target - people.pos)
+    last = people.leg >= people.route_len - 1
+    done = people.leg >= people.route_len          # arrived earlier: stays where they are
+    arrived = done | (last & (dist < _REACHED))
+    mobile = (people.role == WALKER) | (people.role == WAITER)
+    # The occasional step, taken standing (a walker on its way does not step aside).
     start = (people.steps & (people.step_timer <= 0) & (people.role != SEATED)
+             & (arrived | ~mobile)
              & (jax.random.uniform(k_start, (P,), dtype) < people.step_rate * dt))
     choice = jax.random.randint(k_dir, (P,), 0, 3)          # back, left, right
     turn = jnp.asarray([jnp.pi, 0.5 * jnp.pi, -0.5 * jnp.pi], dtype)[choice]
@@ -118,13 +128,6 @@ def step(key: Array, people: People, robot_pose: Array, dt) -> People:
     step_vel = jnp.where(start[:, None], new_vel, people.step_vel)
     stepping = timer > 0
     # Walking the route.
-    idx = jnp.minimum(people.leg, people.route_len - 1)
-    target = jnp.take_along_axis(people.route, idx[:, None, None], 1)[:, 0]
-    direction, dist = _unit(target - people.pos)
-    last = people.leg >= people.route_len - 1
-    done = people.leg >= people.route_len          # arrived earlier: stays where they are
-    arrived = done | (last & (dist < _REACHED))
-    mobile = (people.role == WALKER) | (people.role == WAITER)
     to_robot, d_robot = _unit(robot_pose[:2] - people.pos)
     facing = jnp.stack([jnp.cos(people.heading), jnp.sin(people.heading)], -1)
     blocked = (d_robot < _YIELD_DISTANCE) & (jnp.sum(to_robot * facing, -1) > 0.5)

@@ -90,14 +90,15 @@ def paired_difference(a, b, z: float = 1.96):
 
 @functools.lru_cache(maxsize=16)
 def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
-             pan=False, reverse=False):
+             pan=False, reverse=False, settle_iterations=0, still_at_end=0.0):
     from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
 
     cfg = ep.ServiceConfig(_scene(), experiment=experiment, perception=perception,
                            compare_sensors=compare_sensors, interest=interest,
                            duration=duration, heading_filter=heading_filter,
-                           pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse)
+                           pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse,
+                           settle_iterations=settle_iterations, still_at_end=still_at_end)
     return cfg, ep.make_episode(cfg)
 
 
@@ -113,7 +114,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 interest: float | None = 0.5, out: Path | None = None, seed: int = 0,
                 batch_size: int | None = None, animate: bool = False, progress: bool = True,
                 stream=sys.stdout, heading_filter: str = "ar", pan: bool = False,
-                reverse: bool = False) -> dict:
+                reverse: bool = False, settle_iterations: int = 0,
+                still_at_end: float = 0.0) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -128,7 +130,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
 
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration),
-                               heading_filter, pan, bool(reverse))
+                               heading_filter, pan, bool(reverse), int(settle_iterations),
+                               float(still_at_end))
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
@@ -138,6 +141,10 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
              f"perception {perception}" + (f", person interest {pi}, heading filter "
                                            f"{heading_filter}" + (", pan unit" if pan else "")
                                            + (", reversing" if reverse else "")
+                                           + (f", to the settled point ({settle_iterations} "
+                                              "steps)" if settle_iterations else "")
+                                           + (f", still for the last {still_at_end:g} s"
+                                              if still_at_end else "")
                                            if experiment == "approach" else ""))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)

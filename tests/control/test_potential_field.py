@@ -7,6 +7,8 @@ front for PI = 0, about 45 deg just outside the personal zone (1.2 m) for PI = 0
 the border of the intimate zone (0.45 m) for PI = 1.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,6 +141,96 @@ def test_unicycle_gradient_following_settles_at_the_minimum_and_faces_the_person
         u = pf.approach_velocity(PARAMS, jnp.asarray([xy[0], xy[1], bearing + offset]),
                                  jnp.asarray(PERSON), interest, gain=0.1)
         assert np.sign(float(u[1])) == -offset
+
+
+_SETTLE = jax.jit(jax.vmap(
+    lambda xy, interest: pf.settle_point(PARAMS, xy, jnp.asarray(PERSON, xy.dtype), interest,
+                                         iterations=200), in_axes=(0, None)))
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("interest", [0.0, 0.5, 1.0])
+def test_settle_point_is_where_the_gradient_flow_ends(interest, dtype):
+    # the same minima as 3000 plain gradient steps reach (the grid minimum, on the start's
+    # side), in 200 clipped, line-searched Newton steps
+    q_min, _ = grid_minimum(interest)
+    ends = np.asarray(_SETTLE(jnp.asarray(to_world(STARTS), dtype), interest))
+    assert ends.dtype == dtype
+    for start, q in zip(STARTS, to_person(ends)):
+        target = np.array([q_min[0], np.sign(q[1]) * abs(q_min[1])])
+        assert np.linalg.norm(q - target) < 0.03, (start, q, target)
+    # no step longer than max_step: a handful of iterations reach at most that far
+    near = pf.settle_point(PARAMS, jnp.asarray(to_world([3.0, 0.4])), jnp.asarray(PERSON),
+                           interest, iterations=4, max_step=0.05)
+    assert np.linalg.norm(np.asarray(near) - to_world([3.0, 0.4])) <= 4 * 0.05 + 1e-6
+
+
+@jax.jit
+def approach_settling(pose, interest):
+    def body(pose, _):
+        target = pf.settle_point(PARAMS, pose[:2], jnp.asarray(PERSON), interest,
+                                 iterations=200)
+        # parked within 8 cm: stand and face the person
+        near = jnp.sum((target - pose[:2]) ** 2) < 0.08 ** 2
+        u = pf.approach_velocity(PARAMS, pose, jnp.asarray(PERSON), interest, gain=1.0,
+                                 v_max=0.6, reverse=True,
+                                 target=jnp.where(near, pose[:2], target))
+        return follower.unicycle_step(pose, u, 0.1), None
+    return jax.lax.scan(body, pose, None, length=300)[0]
+
+
+@pytest.mark.parametrize("interest", [0.0, 1.0])
+def test_driving_to_the_settle_point_reaches_the_minimum_within_30_s(interest):
+    # gain 1 (m/s per unit gradient) leaves the gradient follower far from the PI = 0 and
+    # PI = 1 minima after 30 s (their valleys are flat); driving to the settled point does not
+    q_min, _ = grid_minimum(interest)
+    headings = np.array([0.0, 2.0, -2.5, 1.0, 3.0, -1.0])
+    poses = jnp.asarray(np.column_stack([to_world(STARTS), headings]))
+    ends = np.asarray(jax.vmap(approach_settling, in_axes=(0, None))(poses, interest))
+    for end in ends:
+        q = to_person(end[:2])
+        assert np.linalg.norm(q - q_min) < 0.08 + 0.03, q
+        # stopped there facing the person
+        bearing = np.arctan2(*(PERSON[:2] - end[:2])[::-1])
+        assert abs(wrap_np(bearing - end[2])) < 0.05
+
+
+@functools.partial(jax.jit, static_argnames="park")
+def hold_near_noisy_person(pose, key, park):
+    def body(carry, k):
+        pose, parked = carry
+        # the person stands still; their estimate jitters by 3 cm
+        person = jnp.asarray(PERSON) + jnp.append(0.03 * jax.random.normal(k, (2,)), 0.0)
+        target = pf.settle_point(PARAMS, pose[:2], person, 0.5, iterations=60)
+        away = jnp.sqrt(jnp.sum((target - pose[:2]) ** 2))
+        if park:                                     # the service scene's hysteresis
+            parked = (away < 0.05) | (parked & (away < 0.25))
+        u = pf.approach_velocity(PARAMS, pose, person, 0.5, gain=1.0, v_max=0.8,
+                                 omega_max=1.2, reverse=True,
+                                 target=jnp.where(parked, pose[:2], target))
+        return (follower.unicycle_step(pose, u, 0.1), parked), u
+    (pose, _), u = jax.lax.scan(body, (pose, jnp.asarray(False)), jax.random.split(key, 300))
+    return pose, u
+
+
+def test_parking_at_the_settled_point_stops_turning_to_and_fro():
+    # arrived near the PI = 0.5 minimum from several headings, with a jittering estimate:
+    # chasing the settled point, the unicycle turns to and fro; parked (with hysteresis) it
+    # stands and faces the person
+    q_min, _ = grid_minimum(0.5)
+    xy = to_world(q_min + np.array([0.05, -0.04]))
+    chased = []
+    for k, heading in enumerate(np.linspace(-np.pi, np.pi, 6, endpoint=False)):
+        pose = jnp.asarray([xy[0], xy[1], heading])
+        end, u = hold_near_noisy_person(pose, jax.random.key(k), True)
+        swing = np.ptp(np.cumsum(np.asarray(u)[100:, 1]) * 0.1)      # after 10 s
+        assert swing < 0.1, heading                  # it only trims its facing (3 cm jitter)
+        assert np.linalg.norm(to_person(np.asarray(end[:2])) - q_min) < 0.15
+        bearing = np.arctan2(*(PERSON[:2] - np.asarray(end[:2]))[::-1])
+        assert abs(wrap_np(bearing - end[2])) < 0.1                 # facing the person
+        chased.append(np.ptp(np.cumsum(np.asarray(
+            hold_near_noisy_person(pose, jax.random.key(k), False)[1])[100:, 1]) * 0.1))
+    assert np.mean(chased) > 0.5                     # what parking prevents (0.9 rad)
 
 
 def test_approach_velocity_respects_limits_and_feeds_the_person_velocity_forward():

@@ -68,28 +68,53 @@ def test_bad_velocity_shape_is_rejected():
 
 # --- the windowed variant -------------------------------------------------------------------
 
-def _windowed_reference(heading0, positions, window, dt, min_distance):
+def _windowed_reference(heading0, positions, window, dt, min_distance, segments=1,
+                        chord=2.5):
     """A plain loop over a list of past positions (the first repeated before the start)."""
     past = [np.asarray(positions[0], float)] * window
     th, out = heading0, []
+    anchor, was_moving = None, False
     for p in positions:
-        d = np.asarray(p, float) - past[-window]
-        if np.hypot(*d) >= min_distance:
-            v = d / (window * dt)
+        p = np.asarray(p, float)
+        d = p - past[-window]
+        moved = np.hypot(*d) >= min_distance
+        v = d / (window * dt)
+        if segments > 1:
+            # the last `window` positions (this one included), cut into `segments` pieces,
+            # each averaged
+            last = np.array(past[-(window - 1):] + [p]) if window > 1 else np.array([p])
+            cuts = [(j * window) // segments for j in range(segments + 1)]
+            c = [last[a:b].mean(0) for a, b in zip(cuts[:-1], cuts[1:])]
+            whole = c[-1] - c[0]
+            moved = all(np.hypot(*(b - a)) >= min_distance / segments
+                        and (b - a) @ whole >= heading.SUSTAINED_COS * np.hypot(*(b - a))
+                        * np.hypot(*whole) for a, b in zip(c[:-1], c[1:]))
+            if moved and not was_moving:
+                anchor = c[0]                                   # the sustained walk's start
+            was_moving = moved
+            if moved:
+                chord_vec = c[-1] - anchor
+                if np.hypot(*chord_vec) > chord:                 # pulled along behind
+                    anchor = c[-1] - chord_vec * chord / np.hypot(*chord_vec)
+                    chord_vec = c[-1] - anchor
+                speed = np.hypot(*whole) / ((segments - 1) * window * dt / segments)
+                v = chord_vec / np.hypot(*chord_vec) * speed     # the chord's direction
+        if moved:
             b = beta_eq13(np.hypot(*v))
             e = (np.arctan2(v[1], v[0]) - th + np.pi) % (2 * np.pi) - np.pi
             th = (th + (1 - b) * e + np.pi) % (2 * np.pi) - np.pi
-        past.append(np.asarray(p, float))
+        past.append(p)
         out.append(th)
     return np.asarray(out)
 
 
-def _run_windowed(heading0, positions, window=20, dt=0.1, min_distance=0.5):
+def _run_windowed(heading0, positions, window=20, dt=0.1, min_distance=0.5, segments=1):
     positions = jnp.asarray(positions)
     s0 = heading.windowed_heading_init(heading0, positions[0], window)
 
     def body(s, p):
-        s = heading.windowed_heading_step(s, p, dt, min_distance=min_distance)
+        s = heading.windowed_heading_step(s, p, dt, min_distance=min_distance,
+                                          segments=segments)
         return s, s.heading
 
     return np.asarray(jax.lax.scan(body, s0, positions)[1])
@@ -106,6 +131,51 @@ def test_windowed_filter_equals_a_loop_over_the_window(dtype):
     ref = _windowed_reference(0.3, pos.astype(dtype).astype(float), 20, 0.1, 0.5)
     np.testing.assert_allclose(out, ref, atol=1e-5 if dtype == jnp.float32 else 1e-10)
     assert out.dtype == dtype
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("window,segments", [(20, 4), (25, 2), (23, 3)])
+def test_sustained_filter_equals_a_loop_over_the_window(dtype, window, segments):
+    rng = np.random.default_rng(4)
+    # walk, turn sharply, two steps back, walk slowly, with position noise
+    v = np.concatenate([np.tile([0.5, 0.1], (40, 1)), np.tile([-0.1, 0.5], (70, 1)),
+                        np.tile([-0.3, 0.0], (20, 1)), np.zeros((10, 2)),
+                        np.tile([0.3, 0.3], (40, 1))])
+    pos = np.cumsum(v * 0.1, 0) + 0.01 * rng.standard_normal(v.shape)
+    out = _run_windowed(0.3, pos.astype(dtype), window, min_distance=0.8, segments=segments)
+    ref = _windowed_reference(0.3, pos.astype(dtype).astype(float), window, 0.1, 0.8,
+                              segments)
+    np.testing.assert_allclose(out, ref, atol=1e-5 if dtype == jnp.float32 else 1e-10)
+    assert out.dtype == dtype
+    assert np.ptp(out) > 1.0                     # it did turn, more than once
+
+
+def test_two_steps_in_a_row_or_a_step_after_a_walk_turn_only_the_plain_window():
+    # facing +x, two 1 s steps backwards at 0.3 m/s back to back: 0.6 m in 2 s
+    v = np.concatenate([np.zeros((30, 2)), np.tile([-0.3, 0.0], (20, 1)), np.zeros((30, 2))])
+    pos = np.cumsum(v * 0.1, 0)
+    assert np.max(np.abs(_run_windowed(0.0, pos))) > 2.5              # windowed: turned
+    np.testing.assert_array_equal(
+        _run_windowed(0.0, pos, min_distance=0.8, segments=3), 0.0)
+    # walking along +x at 0.5 m/s for 4 s, then at once a 1 s step to the left
+    v = np.concatenate([np.tile([0.5, 0.0], (40, 1)), np.tile([0.0, 0.3], (10, 1)),
+                        np.zeros((30, 2))])
+    pos = np.cumsum(v * 0.1, 0)
+    plain = _run_windowed(np.pi / 2, pos)
+    held = _run_windowed(np.pi / 2, pos, min_distance=0.8, segments=3)
+    np.testing.assert_allclose(held[39], 0.0, atol=1e-3)        # the walk was followed
+    assert abs(plain[-1]) > np.radians(10)                       # the step swung the plain one
+    # standing after a walk along +x, the estimate jumps 0.3 m onwards for good (clutter)
+    v = np.concatenate([np.tile([0.5, 0.0], (40, 1)), np.zeros((8, 2)), [[3.0, 1.0]],
+                        np.zeros((30, 2))])
+    pos = np.cumsum(v * 0.1, 0)
+    assert np.degrees(abs(_run_windowed(0.0, pos)[-1])) > 3                 # plain: turned
+    np.testing.assert_allclose(_run_windowed(0.0, pos, min_distance=0.8, segments=3)[-1], 0.0,
+                               atol=1e-6)
+    # (back to the step after the walk) the sustained heading turns only while the step's
+    # first tenths of a second still pass as
+    # the walk's end, and then along the 2 m chord: under 2 deg
+    assert abs(held[-1]) < np.radians(2)
 
 
 def test_a_step_backwards_leaves_the_windowed_heading_but_turns_eq_12s():

@@ -167,11 +167,17 @@ def test_service_approach_options_reach_the_run(monkeypatch):
     seen = {}
     monkeypatch.setattr(service_report, "run_service", lambda *a, **k: seen.update(args=a, kw=k))
     assert cli.main(["run", "service", "--experiment", "approach", "--interest", "0.5",
-                     "--heading-filter", "windowed", "--pan", "--reverse", "--episodes", "4"]) == 0
+                     "--heading-filter", "sustained", "--pan", "--reverse", "--episodes", "4",
+                     "--settle", "200", "--still-at-end", "5"]) == 0
     assert seen["args"][:2] == ("approach", 4) and seen["args"][5] == 0.5
-    assert seen["kw"] == {"heading_filter": "windowed", "pan": True, "reverse": True}
+    assert seen["kw"] == {"heading_filter": "sustained", "pan": True, "reverse": True,
+                          "settle_iterations": 200, "still_at_end": 5.0}
     assert cli.main(["run", "service", "--experiment", "approach"]) == 0
-    assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False}
+    assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False,
+                          "settle_iterations": 0, "still_at_end": 0.0}
+    for bad in (["--settle", "-1"], ["--still-at-end", "90"]):
+        with pytest.raises(SystemExit):
+            cli.main(["run", "service", "--experiment", "approach"] + bad)
 
 
 def test_humanoid_routes_is_a_run_scene_with_its_own_help(capsys):

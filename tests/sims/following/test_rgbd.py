@@ -210,6 +210,13 @@ def test_odometry_noise_is_proportional_to_motion():
                                math.sqrt(0.001) * 0.8 * math.sqrt(2 / math.pi), rtol=0.1)
     still = np.asarray(odometry_keys(keys[:10], cfg, jnp.zeros(3), jnp.zeros(3)))
     np.testing.assert_array_equal(still, 0.0)
+    # turning on the spot while the centre slides 0.1 mm sideways: still a pure rotation's
+    # noise (the decomposition alone would read two quarter turns: yaw std 0.22 rad)
+    slide = np.asarray(odometry_keys(keys, cfg, jnp.zeros(3), jnp.array([0.0, 1e-4, 0.12])))
+    np.testing.assert_allclose(slide[:, 2].std(), math.sqrt(0.01) * 0.12, rtol=0.1)
+    # from 1 cm on, the decomposition's: a 2 cm sideways step turns by 90 deg and back
+    side = np.asarray(odometry_keys(keys, cfg, jnp.zeros(3), jnp.array([0.0, 0.02, 0.0])))
+    assert side[:, 2].std() > 10 * math.sqrt(2 * 0.002) * 0.02
 
 
 def test_bad_input_raises_clear_errors():

@@ -167,6 +167,10 @@ def test_bad_configurations_are_refused(scene):
                       (dict(duration=math.nan), "duration"),
                       (dict(cell=0.01), "cell"),
                       (dict(heading_filter="kalman"), "heading_filter"),
-                      (dict(heading_window=0.0), "heading_window")):
+                      (dict(heading_window=0.0), "heading_window"),
+                      (dict(still_at_end=61.0), "still_at_end"),
+                      (dict(still_at_end=-1.0), "still_at_end")):
         with pytest.raises(ValueError, match=match):
             ep.ServiceConfig(scene, **kw)
+    assert ep.ServiceConfig(scene, heading_filter="sustained").min_heading_distance == 0.8
+    assert ep.ServiceConfig(scene, heading_filter="windowed").min_heading_distance == 0.5

@@ -69,6 +69,22 @@ def test_steps_go_back_or_sideways_at_0_3_m_s_keeping_the_heading_and_seated_nev
     assert set(lengths[:-1].tolist()) <= {10, 20, 30}
 
 
+def test_walkers_step_only_at_their_place():
+    n = 32
+    ppl = pm.make(jnp.zeros((n, 2)), jnp.zeros(n), jnp.full(n, pm.WAITER), jnp.ones(n, bool),
+                  route=jnp.tile(jnp.array([[[2.0, 0.0]]]), (n, 1, 1)),
+                  speed=jnp.full(n, 0.5), steps=jnp.ones(n, bool), step_rate=2.0)
+    seq = _run(ppl, jnp.array([9.0, 9.0, 0.0]), 70, key=5)
+    vel = np.array([np.asarray(p.vel) for p in seq])            # [T, n, 2]
+    pos = np.array([np.asarray(p.pos) for p in seq])
+    on_way = np.linalg.norm(pos - np.array([2.0, 0.0]), axis=-1) > 0.2
+    # on the way: straight along +x at their speed, never a step aside or back
+    np.testing.assert_allclose(vel[1:][on_way[:-1]][:, 1], 0.0, atol=1e-6)
+    assert (vel[1:][on_way[:-1]][:, 0] > 0.29).all()
+    # at their place they step (at 2 steps a second, nearly all of them)
+    assert (np.abs(vel[-20:, :, 1]) > 0).any(0).mean() > 0.5
+
+
 @pytest.mark.parametrize("name", experiments.EXPERIMENTS)
 def test_experiment_starts_are_in_the_free_floor_and_keep_their_promises(name):
     rooms = experiments.free_floor()
