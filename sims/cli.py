@@ -170,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     svc.add_argument("--settle", type=int, default=0, metavar="ITERATIONS",
                      help="approach: drive to where the field's gradient flow settles (found "
                           "with this many descent steps a frame) instead of along the gradient")
+    svc.add_argument("--heading-frame", choices=("odom", "map"), default="odom",
+                     help="approach: keep the person's heading in the odometry frame (seed "
+                          "002) or in the map frame the robot is localised in")
     svc.add_argument("--still-at-end", type=float, default=0.0, metavar="SECONDS",
                      help="approach: nobody starts a step in the last SECONDS, so the final "
                           "pose is judged once the person has stood still that long")
@@ -447,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
                     args.compare_sensors, interest, args.out, args.seed, args.batch_size,
                     args.animate, heading_filter=args.heading_filter, pan=args.pan,
                     reverse=args.reverse, settle_iterations=args.settle,
-                    still_at_end=args.still_at_end)
+                    still_at_end=args.still_at_end, heading_frame=args.heading_frame)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

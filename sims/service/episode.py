@@ -126,6 +126,10 @@ class ServiceConfig:
         quarter of the window to cover a quarter of that distance the same way, so that two
         steps in a row, a step after a walk, or a jump of the estimate do not turn it either.
         ``heading_min_distance`` None: 0.5 m windowed, 0.8 m sustained.
+      heading_frame: ``approach``, windowed or sustained filter: "odom", the person's positions
+        in the odometry frame, as seed 002 (a held heading then drifts with the odometry's yaw
+        as the robot turns), or "map": in the map frame the robot is localised in (as in
+        the navigation experiments).
       pan: ``approach``: the RGB-D camera's pan unit (`jaxtrack.control.pan_tilt`), servoed to
         the estimated person, or None (the camera looks ahead).
       map_filter_estimator: ``approach``: the map filter (detections outside the flat or in
@@ -174,6 +178,7 @@ class ServiceConfig:
     map_filter_estimator: bool = False
     pan: pan_tilt.PanTiltConfig | None = None
     heading_window: float = 2.0
+    heading_frame: str = "odom"
     heading_min_distance: float | None = None
     person_q: float = 0.5
     robot_radius: float = 0.3
@@ -203,6 +208,9 @@ class ServiceConfig:
         if self.heading_filter not in HEADING_FILTERS:
             raise ValueError(f"unknown heading_filter {self.heading_filter!r}; choose one of "
                              f"{HEADING_FILTERS}")
+        if self.heading_frame not in ("odom", "map"):
+            raise ValueError(f"heading_frame must be 'odom' or 'map'; got "
+                             f"{self.heading_frame!r}")
         if self.park is not None and not 0 < self.park[0] <= self.park[1]:
             raise ValueError(f"park must be (arrive, leave) with 0 < arrive <= leave; got "
                              f"{self.park}")
@@ -655,10 +663,15 @@ def make_rollout(config: ServiceConfig):
         if config.heading_filter != "ar" and config.perception != "truth":
             # the person's heading from their displacement over the window (odometry frame;
             # at the start: facing the robot, as seed 002 assumes of a person it finds)
+            turn = 0.0
+            xy = p[:2]
+            if config.heading_frame == "map":
+                turn = pose[2] - sensed.odom_pose[2]
+                xy = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose, xy))
             person_heading = heading_filter.windowed_heading_step(
-                s.person_heading, p[:2], dt, heading_params, config.min_heading_distance,
+                s.person_heading, xy, dt, heading_params, config.min_heading_distance,
                 segments=HEADING_SEGMENTS if config.heading_filter == "sustained" else 1)
-            heading = person_heading.heading
+            heading = wrap(person_heading.heading - turn)
         if config.interest is None:
             feats = person_interest.encounter_features(
                 geometry.to_frame(sensed.odom_pose, p[:2]),

@@ -90,7 +90,8 @@ def paired_difference(a, b, z: float = 1.96):
 
 @functools.lru_cache(maxsize=16)
 def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
-             pan=False, reverse=False, settle_iterations=0, still_at_end=0.0):
+             pan=False, reverse=False, settle_iterations=0, still_at_end=0.0,
+             heading_frame="odom"):
     from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
 
@@ -98,7 +99,8 @@ def _episode(experiment, perception, compare_sensors, interest, duration, headin
                            compare_sensors=compare_sensors, interest=interest,
                            duration=duration, heading_filter=heading_filter,
                            pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse,
-                           settle_iterations=settle_iterations, still_at_end=still_at_end)
+                           settle_iterations=settle_iterations, still_at_end=still_at_end,
+                           heading_frame=heading_frame)
     return cfg, ep.make_episode(cfg)
 
 
@@ -115,7 +117,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 batch_size: int | None = None, animate: bool = False, progress: bool = True,
                 stream=sys.stdout, heading_filter: str = "ar", pan: bool = False,
                 reverse: bool = False, settle_iterations: int = 0,
-                still_at_end: float = 0.0) -> dict:
+                still_at_end: float = 0.0, heading_frame: str = "odom") -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
@@ -131,7 +133,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration),
                                heading_filter, pan, bool(reverse), int(settle_iterations),
-                               float(still_at_end))
+                               float(still_at_end), heading_frame)
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
@@ -145,6 +147,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                                               "steps)" if settle_iterations else "")
                                            + (f", still for the last {still_at_end:g} s"
                                               if still_at_end else "")
+                                           + (", heading in the map frame"
+                                              if heading_frame == "map" else "")
                                            if experiment == "approach" else ""))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)

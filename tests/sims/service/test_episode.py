@@ -169,7 +169,9 @@ def test_bad_configurations_are_refused(scene):
                       (dict(heading_filter="kalman"), "heading_filter"),
                       (dict(heading_window=0.0), "heading_window"),
                       (dict(still_at_end=61.0), "still_at_end"),
-                      (dict(still_at_end=-1.0), "still_at_end")):
+                      (dict(still_at_end=-1.0), "still_at_end"),
+                      (dict(heading_frame="world"), "heading_frame"),
+                      (dict(park=(0.3, 0.1)), "park")):
         with pytest.raises(ValueError, match=match):
             ep.ServiceConfig(scene, **kw)
     assert ep.ServiceConfig(scene, heading_filter="sustained").min_heading_distance == 0.8
