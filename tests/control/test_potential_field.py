@@ -117,6 +117,13 @@ def test_gradient_descent_from_several_starts_reaches_the_grid_minimum(interest)
         assert np.linalg.norm(q - target) < 0.03, (start, q, target)
 
 
+def drive_from_starts(drive, interest):
+    """[6, 3] end poses of ``drive(pose, interest)`` from STARTS, at assorted headings."""
+    headings = np.array([0.0, 2.0, -2.5, 1.0, 3.0, -1.0])
+    poses = jnp.asarray(np.column_stack([to_world(STARTS), headings]))
+    return np.asarray(jax.vmap(drive, in_axes=(0, None))(poses, interest))
+
+
 @jax.jit
 def approach(pose, interest):
     def body(pose, _):
@@ -128,9 +135,7 @@ def approach(pose, interest):
 @pytest.mark.parametrize("interest", [0.0, 1.0])
 def test_unicycle_gradient_following_settles_at_the_minimum_and_faces_the_person(interest):
     q_min, _ = grid_minimum(interest)
-    headings = np.array([0.0, 2.0, -2.5, 1.0, 3.0, -1.0])
-    poses = jnp.asarray(np.column_stack([to_world(STARTS), headings]))
-    ends = np.asarray(jax.vmap(approach, in_axes=(0, None))(poses, interest))
+    ends = drive_from_starts(approach, interest)
     for end in ends:
         q = to_person(end[:2])
         assert np.linalg.norm(q - q_min) < 0.1, q
@@ -184,9 +189,7 @@ def test_driving_to_the_settle_point_reaches_the_minimum_within_30_s(interest):
     # gain 1 (m/s per unit gradient) leaves the gradient follower far from the PI = 0 and
     # PI = 1 minima after 30 s (their valleys are flat); driving to the settled point does not
     q_min, _ = grid_minimum(interest)
-    headings = np.array([0.0, 2.0, -2.5, 1.0, 3.0, -1.0])
-    poses = jnp.asarray(np.column_stack([to_world(STARTS), headings]))
-    ends = np.asarray(jax.vmap(approach_settling, in_axes=(0, None))(poses, interest))
+    ends = drive_from_starts(approach_settling, interest)
     for end in ends:
         q = to_person(end[:2])
         assert np.linalg.norm(q - q_min) < 0.08 + 0.03, q
