@@ -500,8 +500,8 @@ jax.tree_util.register_static(RobotFrameKFConfig)
 
 class RobotFrameKFParams(NamedTuple):
     """Tunable parameters of `robot_frame_kf` (unconstrained): log acceleration variances of
-    the person and of the robot, log detection std, log odometry-speed std, the chi-square gate
-    probability, and the frame period ``dt``."""
+    the person and of the robot, log detection std of the laser and of the RGB-D detector, log
+    odometry-speed std, the chi-square gate probability, and the frame period ``dt``."""
 
     log_q_person: Array
     log_q_robot: Array
@@ -509,6 +509,7 @@ class RobotFrameKFParams(NamedTuple):
     log_r_odom: Array
     gate_prob: Array
     dt: Array
+    log_r_rgbd: Array
 
 
 class RobotFrameKFState(NamedTuple):
@@ -523,19 +524,23 @@ def robot_frame_kf(config: RobotFrameKFConfig = RobotFrameKFConfig()) -> Estimat
     """Seed 002's user Kalman filter (module docstring) as an `Estimator`.
 
     ``params(dt=0.1, q=4.0, q_robot=0.5, laser_std=0.1, odom_std=0.05, gate_prob=0.99999,
-    dtype=float32)``: ``q`` is the person's acceleration variance (a single target gated on
-    its own covariance needs room for stops and turns; measurements: docs/design_notes.md,
-    "Person following: the robot-frame Kalman filter's acceleration variance").
+    rgbd_std=None, dtype=float32)``: ``q`` is the person's acceleration variance (a single
+    target gated on its own covariance needs room for stops and turns; measurements:
+    docs/design_notes.md, "Person following: the robot-frame Kalman filter's acceleration
+    variance"); ``rgbd_std`` the RGB-D detections' std (None: ``laser_std``, seed 002 having a
+    laser only). Each candidate is gated and, if nearest, applied with its own sensor's std.
 
     Example:
       >>> est = robot_frame_kf()
     """
 
     def params(*, dt=0.1, q=4.0, q_robot=0.5, laser_std=0.1, odom_std=0.05,
-               gate_prob=0.99999, dtype=jnp.float32) -> RobotFrameKFParams:
+               gate_prob=0.99999, rgbd_std=None, dtype=jnp.float32) -> RobotFrameKFParams:
         f = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+        rgbd_std = laser_std if rgbd_std is None else rgbd_std
         return RobotFrameKFParams(f(jnp.log(q)), f(jnp.log(q_robot)), f(jnp.log(laser_std)),
-                                  f(jnp.log(odom_std)), f(gate_prob), f(dt))
+                                  f(jnp.log(odom_std)), f(gate_prob), f(dt),
+                                  f(jnp.log(rgbd_std)))
 
     def init(key, params: RobotFrameKFParams, prior: Prior) -> RobotFrameKFState:
         dtype = params.log_r.dtype
@@ -559,10 +564,11 @@ def robot_frame_kf(config: RobotFrameKFConfig = RobotFrameKFConfig()) -> Estimat
         xy = jnp.concatenate([z.laser_xy, z.rgbd_xy], 0)
         mask = jnp.concatenate([lm, km], 0)
         rel = geometry.to_frame(z.odom_pose, xy).astype(dtype)
-        r = jnp.exp(params.log_r)
-        S = g.cov[:2, :2] + r**2 * jnp.eye(2, dtype=dtype)
+        r = jnp.concatenate([jnp.full(lm.shape, jnp.exp(params.log_r), dtype),
+                             jnp.full(km.shape, jnp.exp(params.log_r_rgbd), dtype)])
+        S = g.cov[:2, :2] + (r**2)[:, None, None] * jnp.eye(2, dtype=dtype)
         d = rel - g.mean[:2]
-        d2 = jnp.einsum("mi,ij,mj->m", d, _linalg.inv2(S), d)
+        d2 = jnp.einsum("mi,mij,mj->m", d, _linalg.inv2(S), d)
         # chi-square 2-dof quantile in closed form: -2 log(1 - p)
         gate = -2.0 * jnp.log1p(-params.gate_prob)
         d2 = jnp.where(mask & (d2 <= gate), d2, jnp.inf)
@@ -572,7 +578,7 @@ def robot_frame_kf(config: RobotFrameKFConfig = RobotFrameKFConfig()) -> Estimat
         speed = z.odom_speed
         zv = jnp.concatenate([jnp.where(found, rel[j], 0.0),
                               jnp.stack([speed, 0.0 * speed])]).astype(dtype)
-        R = jnp.diag(jnp.stack([r**2, r**2, ro**2, ro**2])).astype(dtype)
+        R = jnp.diag(jnp.stack([r[j]**2, r[j]**2, ro**2, ro**2])).astype(dtype)
         zmask = jnp.stack([found, found, True, True])
         g, _ = kalman.update(g, zv, H, R, zmask)
         # The heading is kept in the robot frame, like the state: the robot's turn by

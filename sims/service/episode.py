@@ -254,7 +254,8 @@ def _kf_config(config: ServiceConfig) -> user.RobotFrameKFConfig:
 
 
 def make_params(config: ServiceConfig) -> ServiceParams:
-    """Default parameters: seed 003's sensor noise in the tracker, whose acceleration density
+    """Default parameters: seed 003's sensor noise in the tracker (and in seed 002's filter of
+    the approach: 0.2 m laser, 0.3 m RGB-D), whose acceleration density
     is 0.1 m^2/s^3 (people in a home walk smoothly): with 0.5, a still person's estimated
     velocity has a 0.18 m/s spread per axis and crosses the 0.1 m/s walking threshold most of
     the time, and a velocity test at the 0.9 level then calls walkers at 0.5 m/s still (the
@@ -270,7 +271,7 @@ def make_params(config: ServiceConfig) -> ServiceParams:
                                      clutter_density=0.02, birth_confidence=0.75,
                                      dtype=dtype),
         potential_field.Params.create(dtype=dtype),
-        est.params(dt=config.control_dt, q=config.person_q),
+        est.params(dt=config.control_dt, q=config.person_q, laser_std=0.2, rgbd_std=0.3),
         jnp.asarray(0.6, dtype), jnp.asarray(1.0, dtype))
 
 

@@ -432,3 +432,44 @@ def test_robot_frame_kf_keeps_a_still_persons_heading_while_the_robot_turns():
     assert errors[1.0][15:25].max() < 0.35          # walking: the velocity's direction
     assert errors[1.0][30:].max() < 0.35            # standing, the robot turning: held
     assert errors[0.9][30:].max() > 1.0             # the seed's 0.9 wanders
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_robot_frame_kf_applies_each_sensors_own_noise(dtype):
+    """One RGB-D detection, no laser: the update is a Kalman update with the RGB-D std (0.3 m),
+    checked against the closed form on the position block; the same detection from the laser
+    (0.1 m) pulls the estimate further, and rgbd_std=None keeps the laser's."""
+    est = user.robot_frame_kf(user.RobotFrameKFConfig())
+    prior = user.Prior(jnp.asarray([2.0, 0.0], dtype), jnp.zeros(3, dtype), jnp.zeros(3, dtype))
+    z = jnp.asarray([[2.3, 0.2]], dtype)
+    none = jnp.zeros(1, bool)
+    moved = {}
+    for sensor, rgbd_std in (("rgbd", 0.3), ("laser", 0.3), ("rgbd", None)):
+        params = est.params(dt=DT, q=0.5, laser_std=0.1, rgbd_std=rgbd_std, dtype=dtype)
+        state = est.init(jax.random.key(0), params, prior)
+        on = jnp.ones(1, bool)
+        sensed = _sensed(z if sensor == "laser" else jnp.zeros((1, 2), dtype),
+                         on if sensor == "laser" else none,
+                         z if sensor == "rgbd" else jnp.zeros((1, 2), dtype),
+                         on if sensor == "rgbd" else none, jnp.zeros((1, 3), dtype),
+                         jnp.zeros(3, dtype))
+        new, e = est.update(jax.random.key(1), state, sensed, params)
+        assert new.belief.mean.dtype == dtype
+        moved[sensor, rgbd_std] = np.asarray(new.belief.mean[:2], float)
+        if (sensor, rgbd_std) == ("rgbd", 0.3):
+            # the reference: predict the prior's 6-state belief, then the Kalman update of
+            # (x, y, robot speed) with R = diag(0.3^2, 0.3^2, odom_std^2, odom_std^2)
+            from jaxtrack.filters import kalman
+            from jaxtrack.models import measurement, motion
+            F, Q = motion.person_relative(DT, 0.0, 0.5, jnp.exp(params.log_q_robot))
+            g = kalman.predict(state.belief, F.astype(dtype), Q.astype(dtype))
+            P, x = np.asarray(g.cov, float), np.asarray(g.mean, float)
+            H = np.asarray(measurement.person_relative(jnp.float64))
+            R = np.diag([0.09, 0.09, 0.05 ** 2, 0.05 ** 2])
+            K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+            ref = x + K @ (np.array([2.3, 0.2, 0.0, 0.0]) - H @ x)
+            np.testing.assert_allclose(moved[sensor, rgbd_std], ref[:2],
+                                       atol=1e-5 if dtype == jnp.float32 else 1e-10)
+    pull = {k: np.linalg.norm(v - [2.0, 0.0]) for k, v in moved.items()}
+    assert pull["laser", 0.3] > 1.5 * pull["rgbd", 0.3]
+    np.testing.assert_allclose(pull["rgbd", None], pull["laser", 0.3], rtol=1e-5)
