@@ -205,3 +205,13 @@ def test_windowed_filter_skips_a_missing_position_and_refuses_a_bad_window():
         heading.windowed_heading_init(0.0, jnp.zeros(2), 0)
     with pytest.raises(ValueError, match="position"):
         heading.windowed_heading_init(0.0, jnp.zeros(3), 5)
+    with pytest.raises(ValueError, match="segments"):
+        heading.windowed_heading_step(heading.windowed_heading_init(0.0, jnp.zeros(2), 2),
+                                      jnp.zeros(2), 0.1, segments=3)
+    # a missing position leaves the sustained filter's state as it was
+    s = heading.windowed_heading_init(0.5, jnp.zeros(2), 20)
+    s = heading.windowed_heading_step(s, jnp.ones(2), 0.1, min_distance=0.8, segments=3)
+    after = heading.windowed_heading_step(s, jnp.full(2, jnp.nan), 0.1, min_distance=0.8,
+                                          segments=3)
+    for a, b in zip(after, s):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
