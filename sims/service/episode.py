@@ -122,9 +122,10 @@ class ServiceConfig:
         "windowed" (`jaxtrack.filters.heading.windowed_heading_step`): the same equations on
         the mean velocity over ``heading_window`` seconds, the heading held while the person
         has moved less than ``heading_min_distance`` (m) over it, so that a step backwards or
-        sideways does not turn it; or "sustained": the windowed filter that also needs each
-        quarter of the window to cover a quarter of that distance the same way, so that two
-        steps in a row, a step after a walk, or a jump of the estimate do not turn it either.
+        sideways does not turn it; or "sustained": the windowed filter on the averages of
+        `HEADING_SEGMENTS` pieces of the window, each move between them covering that share of
+        the distance the same way, so that two steps in a row, a step after a walk, or a jump
+        of the estimate do not turn it either; it turns towards the chord of the walk.
         ``heading_min_distance`` None: 0.5 m windowed, 0.8 m sustained.
       heading_frame: ``approach``, windowed or sustained filter: "odom", the person's positions
         in the odometry frame, as seed 002 (a held heading then drifts with the odometry's yaw
