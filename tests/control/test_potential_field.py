@@ -368,3 +368,11 @@ def test_bad_input_raises_clear_errors():
         pf.approach_velocity(PARAMS, jnp.zeros(3), person, 0.5, v_max=0.0)
     with pytest.raises(ValueError, match="robot_pose must have shape"):
         pf.approach_velocity(PARAMS, xy, person, 0.5)
+    with pytest.raises(ValueError, match="target must have shape"):
+        pf.approach_velocity(PARAMS, jnp.zeros(3), person, 0.5, target=jnp.zeros(3))
+    with pytest.raises(ValueError, match="robot_xy must have shape"):
+        pf.settle_point(PARAMS, jnp.zeros(3), person, 0.5)
+    with pytest.raises(ValueError, match="robot_xy"):
+        pf.settle_point(PARAMS, jnp.array([np.nan, 0.0]), person, 0.5)
+    with pytest.raises(ValueError, match="interest"):
+        pf.settle_point(PARAMS, jnp.zeros(2), person, 1.5)
