@@ -161,7 +161,9 @@ def main(argv: list[str] | None = None) -> int:
                      default="ar",
                      help="approach: seed 002's AR heading filter on the velocity, the "
                           "windowed one that holds the heading through short steps, or the "
-                          "sustained one that also holds it through steps in a row")
+                          "sustained one that also holds it through steps in a row; "
+                          "handover: the waiting person's heading from their track's velocity "
+                          "(ar) or from that filter on its positions")
     svc.add_argument("--pan", action="store_true",
                      help="approach: the RGB-D camera on its pan unit, turned to the person")
     svc.add_argument("--reverse", action="store_true",

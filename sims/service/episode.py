@@ -118,7 +118,7 @@ class ServiceConfig:
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
-      heading_filter: ``approach``: "ar", seed 002's eqs. 12-13 on the filter's velocity, or
+      heading_filter: ``approach`` and ``handover``: "ar", seed 002's eqs. 12-13 on the filter's velocity, or
         "windowed" (`jaxtrack.filters.heading.windowed_heading_step`): the same equations on
         the mean velocity over ``heading_window`` seconds, the heading held while the person
         has moved less than ``heading_min_distance`` (m) over it, so that a step backwards or
@@ -126,6 +126,9 @@ class ServiceConfig:
         `HEADING_SEGMENTS` pieces of the window, each move between them covering that share of
         the distance the same way, so that two steps in a row, a step after a walk, or a jump
         of the estimate do not turn it either; it turns towards the chord of the walk.
+        ``handover``: "ar" takes the waiting person's heading from their track's velocity (the
+        status's); "windowed" and "sustained" run that filter on every track's map positions
+        and give its heading to the tracks with the hand-over status.
         ``heading_min_distance`` None: 0.5 m windowed, 0.8 m sustained.
       heading_frame: ``approach``, windowed or sustained filter: "odom", the person's positions
         in the odometry frame, as seed 002 (a held heading then drifts with the odometry's yaw
@@ -150,6 +153,9 @@ class ServiceConfig:
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
+      hold_radius: ``handover``: once the hand-over pose is reached, the robot stays there,
+        turning to face the person, until the goal moves farther than this (m) away;
+        ``GOAL_TOLERANCE`` or less: it chases the goal again whenever it leaves the tolerance.
       robot_radius: the body (m). safety_margin: people's costs are inflated by the body
         plus this (m): the grid's cells, the tracks' errors (about 0.08 m) and pure pursuit's
         cut corners would otherwise put the body a few centimetres inside a lethal core.
@@ -182,6 +188,7 @@ class ServiceConfig:
     heading_frame: str = "odom"
     heading_min_distance: float | None = None
     person_q: float = 0.5
+    hold_radius: float = 0.5
     robot_radius: float = 0.3
     safety_margin: float = 0.1
     v_max: float = 0.8
@@ -204,6 +211,8 @@ class ServiceConfig:
             raise ValueError(f"still_at_end must be in [0, duration]; got {self.still_at_end}")
         if not 0.05 <= self.cell <= 0.5:
             raise ValueError(f"cell must be in [0.05, 0.5] m; got {self.cell}")
+        if not (math.isfinite(self.hold_radius) and self.hold_radius >= 0):
+            raise ValueError(f"hold_radius must be >= 0 m; got {self.hold_radius}")
         if self.replan_every < 1 or self.sweeps < 1:
             raise ValueError("replan_every and sweeps must be >= 1")
         if self.heading_filter not in HEADING_FILTERS:
@@ -359,6 +368,7 @@ class State(NamedTuple):
     person_heading: heading_filter.WindowedHeading
     pan: pan_tilt.PanState
     parked: Array
+    track_heading: heading_filter.WindowedHeading
 
 
 class Frame(NamedTuple):
@@ -441,6 +451,9 @@ def make_rollout(config: ServiceConfig):
     cases = person_interest.CaseBase.create(dtype=dtype)
     window = max(1, int(round(config.heading_window / dt)))
     heading_params = heading_filter.HeadingParams(slow=config.heading_slow)
+    segments = HEADING_SEGMENTS if config.heading_filter == "sustained" else 1
+    track_headings = (exp == "handover" and config.heading_filter != "ar"
+                      and config.perception != "truth")
 
     def reset(key, params):
         k_setup, k_est = jax.random.split(key)
@@ -461,7 +474,9 @@ def make_rollout(config: ServiceConfig):
                             heading_filter.windowed_heading_init(
                                 jnp.arctan2(pose[1] - ppl.pos[0, 1], pose[0] - ppl.pos[0, 0]),
                                 ppl.pos[0], window),
-                            pan_tilt.init(dtype), jnp.asarray(False))
+                            pan_tilt.init(dtype), jnp.asarray(False),
+                            jax.vmap(lambda p: heading_filter.windowed_heading_init(
+                                0.0, p, window))(jnp.zeros((_TRACKER.capacity, 2), dtype)))
 
     def in_free_space(zs):
         """[N] map-frame points inside the flat and off its walls and furniture."""
@@ -588,6 +603,22 @@ def make_rollout(config: ServiceConfig):
             prev_heading = jnp.where(tracks.id == s.ids, s.heading, prev_heading)
         st = status_mod.classify(xy, vel, prev_heading, present, sitting=sitting,
                                  handover=handover, velocity_cov=cov, significance=0.9)
+        track_heading = s.track_heading
+        if track_headings:
+            # a waiting person's heading from the windowed (or sustained) filter on their
+            # track's positions, as the approach's, rather than from the velocity at which they
+            # stopped: the tracker's velocity turns with the noise as it decays to zero
+            fresh = tracks.id != s.ids
+            init = jax.vmap(lambda h, p: heading_filter.windowed_heading_init(h, p, window))(
+                st.heading, xy)
+            track_heading = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(fresh.reshape((-1,) + (1,) * (a.ndim - 1)), a, b),
+                init, s.track_heading)
+            track_heading = jax.vmap(lambda h, p: heading_filter.windowed_heading_step(
+                h, p, dt, heading_params, config.min_heading_distance,
+                segments=segments))(track_heading, xy)
+            st = st._replace(heading=jnp.where(st.status == status_mod.HANDOVER,
+                                               track_heading.heading, st.heading))
         if config.perception == "truth":
             # the true roles: a seated person is seated, a waiting one waits
             role = jnp.zeros(xy.shape[0], jnp.int32).at[:P].set(ppl.role)
@@ -629,7 +660,13 @@ def make_rollout(config: ServiceConfig):
                                            params.lookahead)
         aim = jnp.where(geometry.safe_norm(goal - pose[:2]) < params.lookahead, goal, aim)
         u = grid_planner.track_path(pose, aim, params.follow)
-        at_goal = geometry.safe_norm(goal - pose[:2]) < GOAL_TOLERANCE
+        to_goal = geometry.safe_norm(goal - pose[:2])
+        at_goal = to_goal < GOAL_TOLERANCE
+        if exp == "handover":
+            # once there, the robot holds the hand-over pose while the goal (which moves with
+            # the person's estimate) stays within ``hold_radius``: chasing its jitter across
+            # the tolerance turned the robot to and fro, away from the person
+            at_goal = at_goal | (s.done & (to_goal < config.hold_radius))
         # at the goal: stop, turning toward the person (hand-over) or staying
         to_face = face - pose[:2]
         e = wrap(jnp.arctan2(to_face[1], to_face[0]) - pose[2])
@@ -640,7 +677,7 @@ def make_rollout(config: ServiceConfig):
             done = at_goal & found & (jnp.abs(e) < math.radians(15.0))
         else:
             done = at_goal
-        return u, done, st, goal, target, dist
+        return u, done, st, goal, target, dist, track_heading
 
     def on_map(xy_odom, odom_pose, pose):
         """[N] odometry-frame points that lie in the flat's free space (the map filter of
@@ -672,7 +709,7 @@ def make_rollout(config: ServiceConfig):
                 xy = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose, xy))
             person_heading = heading_filter.windowed_heading_step(
                 s.person_heading, xy, dt, heading_params, config.min_heading_distance,
-                segments=HEADING_SEGMENTS if config.heading_filter == "sustained" else 1)
+                segments=segments)
             heading = wrap(person_heading.heading - turn)
         if config.interest is None:
             feats = person_interest.encounter_features(
@@ -719,7 +756,7 @@ def make_rollout(config: ServiceConfig):
             tracks, extra = s.tracks, s.extra_tracks
             est_state, e, pi, u, (person_heading, camera, parked) = approach_behaviour(
                 s, ks[5], sensed, ppl, params, pose)
-            dist = s.dist
+            dist, track_heading = s.dist, s.track_heading
             est_world = geometry.from_frame(pose, geometry.to_frame(sensed.odom_pose,
                                                                      e.user[:2]))
             target = jnp.append(est_world, wrap(e.user_heading + pose[2]
@@ -736,7 +773,8 @@ def make_rollout(config: ServiceConfig):
             camera, parked = s.pan, s.parked
             tracks, *extra = track_groups((s.tracks,) + s.extra_tracks, dets, params)
             extra = tuple(extra)
-            u, done, st, goal, target, dist = navigate(s, pose, tracks, ppl, setup, params, full)
+            u, done, st, goal, target, dist, track_heading = navigate(s, pose, tracks, ppl,
+                                                                      setup, params, full)
             all_tracks = (tracks,) + extra
             hyp_pos = jnp.stack([t.mean[:, :2] for t in all_tracks])
             hyp_ids = jnp.stack([t.id for t in all_tracks])
@@ -747,7 +785,7 @@ def make_rollout(config: ServiceConfig):
         u = jnp.where(s.t < settle_frames, 0.0, u)
         new = State(data, ppl, pose, u, sensing_state, odom, tracks, extra, est_state, pi, done,
                     dist, s.t + 1, jnp.where(st.mask, st.heading, 0.0).astype(dtype), tracks.id,
-                    person_heading, camera, parked)
+                    person_heading, camera, parked, track_heading)
         rec = Frame(pose, u, done, ppl.pos, ppl.heading, ppl.mask, ppl.role, hyp_pos, hyp_ids,
                     hyp_mask, jnp.where(st.mask, st.status, -1), st.heading, goal, target, pi)
         return new, rec

@@ -149,7 +149,9 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                                               if still_at_end else "")
                                            + (", heading in the map frame"
                                               if heading_frame == "map" else "")
-                                           if experiment == "approach" else ""))
+                                           if experiment == "approach" else "")
+             + (f", heading filter {heading_filter}"
+                if experiment == "handover" and heading_filter != "ar" else ""))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)
     print(f"simulated in {run_s:.1f} s after {compile_s:.1f} s of compilation "
