@@ -77,6 +77,9 @@ HEADING_SEGMENTS = 3
 """Pieces of the sustained heading filter's window (`windowed_heading_step`'s segments)."""
 INTIMATE, PERSONAL = costmap.INTIMATE, costmap.PERSONAL
 GOAL_TOLERANCE = 0.25
+COVERED_OCCLUSION = 0.25
+"""Largest hidden fraction at which a ceiling camera is taken to see a robot detection's
+place (the cameras' own detector misses people hidden by more than half)."""
 MOT_THRESHOLD = 0.5
 _SENSOR_GROUPS = {"all": (0, 1, 2), "ceiling": (0,), "robot": (1, 2)}
 _CEILING, _RGBD, _LASER = 0, 1, 2
@@ -153,6 +156,9 @@ class ServiceConfig:
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
+      arc_check: seconds of the commanded arc checked against the people's inflated lethal
+        cores each frame: if it enters one, the robot turns on the spot instead of driving
+        (0: no check; navigation experiments).
       hold_radius: ``handover``: once the hand-over pose is reached, the robot stays there,
         turning to face the person, until the goal moves farther than this (m) away;
         ``GOAL_TOLERANCE`` or less: it chases the goal again whenever it leaves the tolerance.
@@ -188,6 +194,7 @@ class ServiceConfig:
     heading_frame: str = "odom"
     heading_min_distance: float | None = None
     person_q: float = 0.5
+    arc_check: float = 0.5
     hold_radius: float = 0.5
     robot_radius: float = 0.3
     safety_margin: float = 0.1
@@ -211,6 +218,8 @@ class ServiceConfig:
             raise ValueError(f"still_at_end must be in [0, duration]; got {self.still_at_end}")
         if not 0.05 <= self.cell <= 0.5:
             raise ValueError(f"cell must be in [0.05, 0.5] m; got {self.cell}")
+        if not (math.isfinite(self.arc_check) and 0 <= self.arc_check <= 5.0):
+            raise ValueError(f"arc_check must be in [0, 5] s; got {self.arc_check}")
         if not (math.isfinite(self.hold_radius) and self.hold_radius >= 0):
             raise ValueError(f"hold_radius must be >= 0 m; got {self.hold_radius}")
         if self.replan_every < 1 or self.sweeps < 1:
@@ -452,6 +461,7 @@ def make_rollout(config: ServiceConfig):
     window = max(1, int(round(config.heading_window / dt)))
     heading_params = heading_filter.HeadingParams(slow=config.heading_slow)
     segments = HEADING_SEGMENTS if config.heading_filter == "sustained" else 1
+    arc_frames = int(round(config.arc_check / dt))
     track_headings = (exp == "handover" and config.heading_filter != "ar"
                       and config.perception != "truth")
 
@@ -541,8 +551,13 @@ def make_rollout(config: ServiceConfig):
             # a track on the detection itself is the person, not an occluder
             near = jnp.sum((others - z) ** 2, -1) < 0.5 ** 2
             mask = jnp.concatenate([others_on & ~near, jnp.ones(1, bool)])
+            # with a margin: a point a camera sees half hidden, or at its image's edge, may be
+            # a person it misses in every frame (the occlusion here is computed from the
+            # tracks, and coarsely); the robot's detection there may start a track
             proj = ceiling_camera.project_people(cam, people, heights, radii, mask,
-                                                 rim_points=8, occlusion_grid=4)
+                                                 rim_points=8, occlusion_grid=4,
+                                                 max_occlusion=COVERED_OCCLUSION,
+                                                 min_in_image=0.75)
             return proj.visible[-1] & _in_box(room, z)
 
         # the ceiling cameras' own slots come first; only the robot's are checked
@@ -627,7 +642,8 @@ def make_rollout(config: ServiceConfig):
         attended = jnp.where(st.status == status_mod.SEATED, 0, -1).astype(jnp.int32)
         people_cost = costmap.build(g, params.cost, xy, st.heading, st.status, st.mask,
                                     objects_xy=tv, attended=attended)
-        cost = jnp.maximum(_inflate(people_cost, inflate_cells), static)
+        people_layer = _inflate(people_cost, inflate_cells)
+        cost = jnp.maximum(people_layer, static)
         # the task's goal
         if exp == "handover":
             waiting = st.mask & (st.status == status_mod.HANDOVER)
@@ -660,6 +676,8 @@ def make_rollout(config: ServiceConfig):
                                            params.lookahead)
         aim = jnp.where(geometry.safe_norm(goal - pose[:2]) < params.lookahead, goal, aim)
         u = grid_planner.track_path(pose, aim, params.follow)
+        if arc_frames:
+            u = _clear_arc(u, pose, people_layer)
         to_goal = geometry.safe_norm(goal - pose[:2])
         at_goal = to_goal < GOAL_TOLERANCE
         if exp == "handover":
@@ -678,6 +696,19 @@ def make_rollout(config: ServiceConfig):
         else:
             done = at_goal
         return u, done, st, goal, target, dist, track_heading
+
+    def _clear_arc(u, pose, people_layer):
+        """``u`` with no forward speed if the next ``arc_check`` seconds of the arc it drives
+        (Euler steps of the unicycle) enter a person's lethal core, inflated by the body,
+        from outside: it turns on the spot instead. Pure pursuit's arc to its lookahead
+        point cuts the corner of the path, by up to 0.15 m where the path turns around a
+        person; the check is the local planner's collision check (as a DWA's)."""
+        theta = pose[2] + u[1] * dt * jnp.arange(1, arc_frames + 1, dtype=dtype)
+        steps = u[0] * dt * jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)
+        points = jnp.concatenate([pose[None, :2], pose[:2] + jnp.cumsum(steps, 0)])
+        cells = jnp.clip(grid_planner.cell_of(pg, points), 0, jnp.asarray(g.shape) - 1)
+        lethal = people_layer[cells[:, 0], cells[:, 1]] >= costmap.LETHAL
+        return u.at[0].set(jnp.where(jnp.any(lethal[1:]) & ~lethal[0], 0.0, u[0]))
 
     def on_map(xy_odom, odom_pose, pose):
         """[N] odometry-frame points that lie in the flat's free space (the map filter of

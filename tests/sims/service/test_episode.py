@@ -214,6 +214,7 @@ def test_bad_configurations_are_refused(scene):
                       (dict(heading_frame="world"), "heading_frame"),
                       (dict(park=(0.3, 0.1)), "park"),
                       (dict(hold_radius=-0.1), "hold_radius"),
+                      (dict(arc_check=-0.5), "arc_check"),
                       (dict(hold_radius=math.inf), "hold_radius")):
         with pytest.raises(ValueError, match=match):
             ep.ServiceConfig(scene, **kw)
