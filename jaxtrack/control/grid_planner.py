@@ -96,7 +96,7 @@ from jaxtrack import _checks
 Array = jax.Array
 
 __all__ = ["Grid", "cell_of", "centre_of", "distance_field", "refine", "Path", "extract_path",
-           "plan", "Params", "lookahead_point", "track_path"]
+           "plan", "Params", "lookahead_point", "track_path", "clear_arc"]
 
 _STRAIGHT = ((0, 1), (1, 0), (0, -1), (-1, 0))
 _DIAGONAL = ((1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -484,6 +484,49 @@ def track_path(pose: Array, target_xy: Array, params: Params) -> Array:
     u = jnp.stack([v, omega])
     scale = jnp.minimum(_shrink(v, v_max), _shrink(omega, omega_max))
     return jnp.where(at_target, 0.0, u * scale).astype(dtype)
+
+
+def clear_arc(u: Array, pose: Array, blocked: Array, grid: Grid, dt, steps: int) -> Array:
+    r"""The command ``u`` [2] with no forward speed if the arc it drives from ``pose`` [3]
+    enters a ``blocked`` cell from a free one within ``steps`` periods ``dt``: the robot then
+    turns on the spot. The local planner's collision check (as a dynamic window's): pure
+    pursuit's arc to its lookahead point cuts the corners of the path, into what the path went
+    round.
+
+    The arc's points are Euler steps of the unicycle,
+    :math:`\theta_k = \theta + k\,\omega\,dt`,
+    :math:`p_k = p_{k-1} + v\,dt\,(\cos\theta_k, \sin\theta_k)`, :math:`k = 1..n`; ``u``
+    is kept when the robot's own cell is blocked already (it may drive out).
+
+    Args:
+      u: [2] (v, omega). pose: [3] (x, y, theta). blocked: [H, W] bool (``grid``'s shape).
+      grid: `Grid`. dt: period (s), > 0. steps: n (static), >= 1.
+
+    Returns:
+      [2] ``u`` or ``(0, omega)``.
+
+    Example:
+      >>> g = Grid.create(origin=(0.0, 0.0), cell=0.1, shape=(20, 20))
+      >>> wall = jnp.zeros((20, 20), bool).at[:, 12:].set(True)   # x >= 1.15 m
+      >>> clear_arc(jnp.array([0.8, 0.0]), jnp.array([0.5, 1.0, 0.0]), wall, g, 0.1, 10)
+      >>> # (0.0, 0.0): driving 0.8 m along +x would enter the wall
+    """
+    _check_grid(grid)
+    if int(steps) != steps or steps < 1:
+        raise ValueError(f"steps must be a positive number of periods; got {steps}")
+    _checks.check_shape("u", u, (2,), "(v, omega)")
+    _checks.check_shape("pose", pose, (3,), "(x, y, theta)")
+    _checks.check_shape("blocked", blocked, (None, None), "[H, W]")
+    if _checks.is_concrete(dt) and not float(dt) > 0:
+        raise ValueError(f"dt must be > 0; got {dt}")
+    dtype = jnp.result_type(jnp.asarray(u).dtype, jnp.asarray(pose).dtype, jnp.float32)
+    u, pose = jnp.asarray(u, dtype), jnp.asarray(pose, dtype)
+    theta = pose[2] + u[1] * dt * jnp.arange(1, int(steps) + 1, dtype=dtype)
+    moves = u[0] * dt * jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)
+    points = jnp.concatenate([pose[None, :2], pose[:2] + jnp.cumsum(moves, 0)])
+    cells = cell_of(grid, points)
+    hit = jnp.asarray(blocked, bool)[cells[:, 0], cells[:, 1]]
+    return u.at[0].set(jnp.where(jnp.any(hit[1:]) & ~hit[0], 0.0, u[0]))
 
 
 # ---------------------------------------------------------------------------------------------

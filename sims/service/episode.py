@@ -677,7 +677,10 @@ def make_rollout(config: ServiceConfig):
         aim = jnp.where(geometry.safe_norm(goal - pose[:2]) < params.lookahead, goal, aim)
         u = grid_planner.track_path(pose, aim, params.follow)
         if arc_frames:
-            u = _clear_arc(u, pose, people_layer)
+            # the arc's collision check against the people's lethal cores (inflated by the
+            # body): pure pursuit's arc cut the corner round a person by up to 0.15 m
+            u = grid_planner.clear_arc(u, pose, people_layer >= costmap.LETHAL, pg, dt,
+                                       arc_frames)
         to_goal = geometry.safe_norm(goal - pose[:2])
         at_goal = to_goal < GOAL_TOLERANCE
         if exp == "handover":
@@ -696,19 +699,6 @@ def make_rollout(config: ServiceConfig):
         else:
             done = at_goal
         return u, done, st, goal, target, dist, track_heading
-
-    def _clear_arc(u, pose, people_layer):
-        """``u`` with no forward speed if the next ``arc_check`` seconds of the arc it drives
-        (Euler steps of the unicycle) enter a person's lethal core, inflated by the body,
-        from outside: it turns on the spot instead. Pure pursuit's arc to its lookahead
-        point cuts the corner of the path, by up to 0.15 m where the path turns around a
-        person; the check is the local planner's collision check (as a DWA's)."""
-        theta = pose[2] + u[1] * dt * jnp.arange(1, arc_frames + 1, dtype=dtype)
-        steps = u[0] * dt * jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)
-        points = jnp.concatenate([pose[None, :2], pose[:2] + jnp.cumsum(steps, 0)])
-        cells = jnp.clip(grid_planner.cell_of(pg, points), 0, jnp.asarray(g.shape) - 1)
-        lethal = people_layer[cells[:, 0], cells[:, 1]] >= costmap.LETHAL
-        return u.at[0].set(jnp.where(jnp.any(lethal[1:]) & ~lethal[0], 0.0, u[0]))
 
     def on_map(xy_odom, odom_pose, pose):
         """[N] odometry-frame points that lie in the flat's free space (the map filter of

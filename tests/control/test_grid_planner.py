@@ -396,10 +396,74 @@ def test_bad_input_raises_naming_the_argument():
         (ValueError, "distance", lambda: gp.lookahead_point(
             gp.Grid.create(), jnp.zeros((3, 2), jnp.int32), jnp.ones(3, bool), jnp.zeros(2),
             -1.0)),
+        (ValueError, "steps", lambda: gp.clear_arc(jnp.ones(2), jnp.zeros(3), jnp.zeros(
+            (4, 4), bool), gp.Grid.create(shape=(4, 4)), 0.1, 0)),
+        (ValueError, "blocked", lambda: gp.clear_arc(jnp.ones(2), jnp.zeros(3), jnp.zeros(
+            4, bool), gp.Grid.create(shape=(4, 4)), 0.1, 3)),
+        (ValueError, "dt", lambda: gp.clear_arc(jnp.ones(2), jnp.zeros(3), jnp.zeros(
+            (4, 4), bool), gp.Grid.create(shape=(4, 4)), 0.0, 3)),
     ]
     for error, name, call in cases:
         with pytest.raises(error, match=name):
             call()
+
+
+def _clear_arc_reference(u, pose, blocked, origin, cell, dt, steps):
+    """Plain-loop reference of `clear_arc`: Euler steps, the cell by rounding, clamped."""
+    H, W = blocked.shape
+
+    def hit(x, y):
+        col = min(max(int(np.round((x - origin[0]) / cell)), 0), W - 1)
+        row = min(max(int(np.round((y - origin[1]) / cell)), 0), H - 1)
+        return bool(blocked[row, col])
+
+    x, y, th = (float(v) for v in pose)
+    start = hit(x, y)
+    for k in range(1, steps + 1):
+        th_k = th + k * u[1] * dt
+        x, y = x + u[0] * dt * np.cos(th_k), y + u[0] * dt * np.sin(th_k)
+        if hit(x, y) and not start:
+            return np.array([0.0, u[1]])
+    return np.asarray(u, float)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_clear_arc_stops_before_blocked_cells_like_a_plain_loop(dtype):
+    rng = np.random.default_rng(4)
+    grid = gp.Grid.create(origin=(-1.0, -1.0), cell=0.1, shape=(21, 21), dtype=dtype)
+    fn = jax.jit(lambda u, p, b: gp.clear_arc(u, p, b, grid, 0.1, 5))
+    yx = np.stack(np.meshgrid(np.arange(21), np.arange(21), indexing="ij"), -1) * 0.1 - 1.0
+    stopped = kept = differ = 0
+    for _ in range(200):
+        u = np.array([rng.uniform(0.0, 0.8), rng.uniform(-1.2, 1.2)])
+        pose = np.array([*rng.uniform(-0.5, 0.5, 2), rng.uniform(-np.pi, np.pi)])
+        # a disc of blocked cells (a person's lethal core, inflated) about the robot's way
+        ahead = pose[2] + rng.uniform(-1.0, 1.0)
+        centre = pose[:2] + rng.uniform(0.2, 0.8) * np.array([np.cos(ahead), np.sin(ahead)])
+        blocked = np.linalg.norm(yx[..., ::-1] - centre, axis=-1) < rng.uniform(0.1, 0.4)
+        got = np.asarray(fn(jnp.asarray(u, dtype), jnp.asarray(pose, dtype), blocked))
+        assert got.dtype == dtype
+        want = _clear_arc_reference(u, pose, blocked, (-1.0, -1.0), 0.1, 0.1, 5)
+        if not np.allclose(got, want, atol=1e-6):
+            differ += 1          # a point within float rounding of a cell border
+            continue
+        stopped += bool(got[0] == 0.0)
+        kept += bool(np.isclose(got[0], u[0]))
+    assert differ <= 4 and stopped > 20 and kept > 20, (differ, stopped, kept)
+
+
+def test_clear_arc_lets_a_robot_leave_a_blocked_cell_and_turn_away():
+    grid = gp.Grid.create(origin=(0.0, 0.0), cell=0.1, shape=(20, 20))
+    wall = jnp.zeros((20, 20), bool).at[:, 12:].set(True)                   # x >= 1.15 m
+    u = jnp.array([0.8, 0.0])
+    assert float(gp.clear_arc(u, jnp.array([0.5, 1.0, 0.0]), wall, grid, 0.1, 10)[0]) == 0.0
+    # 0.4 m of driving does not reach it; facing away, or already inside, the robot may drive
+    for pose in ([0.5, 1.0, 0.0, 5], [0.5, 1.0, np.pi, 10], [1.5, 1.0, 0.0, 10]):
+        out = gp.clear_arc(u, jnp.asarray(pose[:3]), wall, grid, 0.1, pose[3])
+        np.testing.assert_array_equal(out, u)
+    # the turn is kept when the speed is not
+    out = gp.clear_arc(jnp.array([0.8, 0.3]), jnp.array([0.5, 1.0, 0.0]), wall, grid, 0.1, 10)
+    np.testing.assert_allclose(out, [0.0, 0.3])
 
 
 def test_bad_cells_under_jit_are_impassable():
