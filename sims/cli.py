@@ -178,6 +178,10 @@ def main(argv: list[str] | None = None) -> int:
     svc.add_argument("--still-at-end", type=float, default=0.0, metavar="SECONDS",
                      help="approach: nobody starts a step in the last SECONDS, so the final "
                           "pose is judged once the person has stood still that long")
+    svc.add_argument("--line-of-sight", action="store_true",
+                     help="drop the RGB-D detections behind the laser's range on their bearing "
+                          "(the simulated detector's false positives otherwise fall through "
+                          "walls)")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -452,7 +456,8 @@ def main(argv: list[str] | None = None) -> int:
                     args.compare_sensors, interest, args.out, args.seed, args.batch_size,
                     args.animate, heading_filter=args.heading_filter, pan=args.pan,
                     reverse=args.reverse, settle_iterations=args.settle,
-                    still_at_end=args.still_at_end, heading_frame=args.heading_frame)
+                    still_at_end=args.still_at_end, heading_frame=args.heading_frame,
+                    line_of_sight=args.line_of_sight)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

@@ -60,6 +60,7 @@ from jaxtrack.filters import heading as heading_filter
 from jaxtrack.perception import ceiling_camera, sensing
 from jaxtrack.tracking import status as status_mod
 from jaxtrack.tracking import tracker, user
+from sims.following import lidar
 from sims.following import scene as scene_mod
 from sims.following import world
 from sims.service import experiments, flat
@@ -69,7 +70,8 @@ Array = jax.Array
 
 __all__ = ["ServiceConfig", "ServiceParams", "Frame", "PERCEPTION", "make_params",
            "make_rollout", "make_episode", "summarize", "static_cost", "cameras", "grid",
-           "build_scene", "HEADING_FILTERS", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE"]
+           "build_scene", "HEADING_FILTERS", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE",
+           "behind_the_scan"]
 
 PERCEPTION = ("all", "ceiling", "robot", "truth")
 HEADING_FILTERS = ("ar", "windowed", "sustained")
@@ -156,6 +158,9 @@ class ServiceConfig:
       person_q: ``approach``: the person's acceleration variance in seed 002's filter
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
+      line_of_sight: drop the RGB-D detections more than 0.5 m beyond the laser's range on
+        their bearing (behind a wall or a person, where the camera cannot see either); the
+        simulated detector's false positives otherwise fall through walls.
       arc_check: seconds of the commanded arc checked against the people's inflated lethal
         cores each frame: if it enters one, the robot turns on the spot instead of driving
         (0: no check; navigation experiments).
@@ -194,6 +199,7 @@ class ServiceConfig:
     heading_frame: str = "odom"
     heading_min_distance: float | None = None
     person_q: float = 0.5
+    line_of_sight: bool = False
     arc_check: float = 0.5
     hold_radius: float = 0.5
     robot_radius: float = 0.3
@@ -527,8 +533,12 @@ def make_rollout(config: ServiceConfig):
         zc, okc = jax.vmap(one_camera)(cams, jax.random.split(k_cam, 4), jnp.asarray(rooms,
                                                                                        dtype))
         rgbd_xy = geometry.from_frame(pose, obs.rgbd.xy.astype(dtype))
+        rgbd_ok = obs.rgbd.mask
+        if config.line_of_sight:
+            rgbd_ok = rgbd_ok & ~behind_the_scan(rgbd_xy, obs.ranges, laser.angles,
+                                                 lidar.laser_pose(pose, scfg.laser))
         zs = jnp.concatenate([zc.reshape(-1, 2), rgbd_xy, sensed.laser_map_xy.astype(dtype)])
-        ok = jnp.concatenate([okc.reshape(-1), obs.rgbd.mask, sensed.laser_mask])
+        ok = jnp.concatenate([okc.reshape(-1), rgbd_ok, sensed.laser_mask])
         # the map: a detection outside the flat or inside a wall or furniture is none (the
         # RGB-D detector's false positives fall anywhere in its field of view, through walls)
         ok = ok & in_free_space(zs) & jnp.all(jnp.isfinite(zs), -1)
@@ -829,6 +839,28 @@ def make_rollout(config: ServiceConfig):
         return frames
 
     return rollout
+
+
+def behind_the_scan(xy: Array, ranges: Array, angles: Array, laser_pose: Array,
+                    margin=0.5) -> Array:
+    """[N] bools: the world points ``xy`` [N, 2] lie more than ``margin`` (m) beyond the laser's
+    range on their bearing, behind a wall or a person the RGB-D camera cannot see through
+    either. Points outside the scan's angles are not behind it.
+
+    Args:
+      xy: [N, 2] world points. ranges: [B] the scan's ranges; angles: [B] its beam angles,
+        evenly spaced, in the laser's frame. laser_pose: [3] the laser's world pose.
+
+    Example:
+      >>> behind_the_scan(jnp.array([[1.0, 0.0], [3.0, 0.0]]), jnp.full(5, 2.0),
+      ...                 jnp.linspace(-0.2, 0.2, 5), jnp.zeros(3))     # [False, True]
+    """
+    rel = geometry.to_frame(laser_pose, xy)
+    bearing = jnp.arctan2(rel[:, 1], rel[:, 0])
+    off = jnp.abs(wrap(angles[None, :] - bearing[:, None]))                 # [N, B]
+    beam = jnp.argmin(off, 1)
+    in_scan = jnp.min(off, 1) <= jnp.abs(angles[1] - angles[0])
+    return in_scan & (geometry.safe_norm(rel) > ranges[beam] + margin)
 
 
 def _areas(boxes, dtype) -> status_mod.Areas:

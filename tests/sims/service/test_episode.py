@@ -220,3 +220,27 @@ def test_bad_configurations_are_refused(scene):
             ep.ServiceConfig(scene, **kw)
     assert ep.ServiceConfig(scene, heading_filter="sustained").min_heading_distance == 0.8
     assert ep.ServiceConfig(scene, heading_filter="windowed").min_heading_distance == 0.5
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_rgbd_detections_behind_the_laser_scan_are_found(dtype):
+    """Against a plain loop: a scan of 181 beams over 180 deg with a wall at 2-4 m."""
+    rng = np.random.default_rng(1)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181).astype(dtype)
+    ranges = rng.uniform(2.0, 4.0, 181).astype(dtype)
+    laser_pose = np.array([1.0, -2.0, 0.7], dtype)
+    xy = laser_pose[:2] + rng.uniform(-5.0, 5.0, (400, 2)).astype(dtype)
+    got = np.asarray(ep.behind_the_scan(jnp.asarray(xy), jnp.asarray(ranges),
+                                        jnp.asarray(angles), jnp.asarray(laser_pose)))
+    want = np.zeros(len(xy), bool)
+    for i, p in enumerate(xy.astype(float)):
+        d = p - laser_pose[:2]
+        r = np.hypot(*d)
+        b = np.angle(np.exp(1j * (np.arctan2(d[1], d[0]) - laser_pose[2])))
+        if b < -np.pi / 2 - np.pi / 180 or b > np.pi / 2 + np.pi / 180:
+            continue                                    # outside the scan
+        k = int(np.argmin(np.abs(angles - b)))
+        want[i] = r > ranges[k] + 0.5
+    # a point within float rounding of two beams' mid-angle may take either
+    assert (got == want).mean() > 0.99 and 50 < want.sum() < 350, ((got != want).sum(),
+                                                                   want.sum())
