@@ -123,18 +123,18 @@ class ServiceConfig:
       heading_slow: ``approach``: the AR heading filter's coefficient below 0.1 m/s (seed
         002's eq. 13 has 0.9, under which a still person's heading wanders with the noise of
         the estimated velocity; 1.0, the default here, holds it).
-      heading_filter: ``approach`` and ``handover``: "ar", seed 002's eqs. 12-13 on the
-        filter's velocity, or "windowed" (`jaxtrack.filters.heading.windowed_heading_step`):
-        the same equations on the mean velocity over ``heading_window`` seconds, the heading
-        held while the person has moved less than ``heading_min_distance`` (m) over it, so
-        that a step backwards or sideways does not turn it; or "sustained": the windowed filter on the averages of
-        `HEADING_SEGMENTS` pieces of the window, each move between them covering that share of
-        the distance the same way, so that two steps in a row, a step after a walk, or a jump
-        of the estimate do not turn it either; it turns towards the chord of the walk.
-        ``handover``: "ar" takes the waiting person's heading from their track's velocity (the
-        status's); "windowed" and "sustained" run that filter on every track's map positions
-        and give its heading to the tracks with the hand-over status.
-        ``heading_min_distance`` None: 0.5 m windowed, 0.8 m sustained.
+      heading_filter: ``approach`` and ``handover``: "ar", seed 002's eqs. 12-13 on the filter's
+        velocity, or "windowed" (`jaxtrack.filters.heading.windowed_heading_step`): the same
+        equations on the mean velocity over ``heading_window`` seconds, the heading held while the
+        person has moved less than ``heading_min_distance`` (m) over it, so that a step backwards or
+        sideways does not turn it; or "sustained": the windowed filter on the averages of
+        `HEADING_SEGMENTS` pieces of the window, each move between them covering that share of the
+        distance the same way, so that two steps in a row, a step after a walk, or a jump of the
+        estimate do not turn it either; it turns towards the chord of the walk. ``handover``: "ar"
+        takes the waiting person's heading from their track's velocity (the status's); "windowed"
+        and "sustained" run that filter on every track's map positions and give its heading to the
+        tracks with the hand-over status. ``heading_min_distance`` None: 0.5 m windowed, 0.8 m
+        sustained.
       heading_frame: ``approach``, windowed or sustained filter: "odom", the person's positions
         in the odometry frame, as seed 002 (a held heading then drifts with the odometry's yaw
         as the robot turns), or "map": in the map frame the robot is localised in (as in
