@@ -517,6 +517,8 @@ def clear_arc(u: Array, pose: Array, blocked: Array, grid: Grid, dt, steps: int)
     _checks.check_shape("u", u, (2,), "(v, omega)")
     _checks.check_shape("pose", pose, (3,), "(x, y, theta)")
     _checks.check_shape("blocked", blocked, (None, None), "[H, W]")
+    _checks.check_finite("u", u)
+    _checks.check_finite("pose", pose)
     if _checks.is_concrete(dt) and not float(dt) > 0:
         raise ValueError(f"dt must be > 0; got {dt}")
     dtype = jnp.result_type(jnp.asarray(u).dtype, jnp.asarray(pose).dtype, jnp.float32)

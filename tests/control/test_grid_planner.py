@@ -400,6 +400,8 @@ def test_bad_input_raises_naming_the_argument():
             (4, 4), bool), gp.Grid.create(shape=(4, 4)), 0.1, 0)),
         (ValueError, "blocked", lambda: gp.clear_arc(jnp.ones(2), jnp.zeros(3), jnp.zeros(
             4, bool), gp.Grid.create(shape=(4, 4)), 0.1, 3)),
+        (ValueError, "pose", lambda: gp.clear_arc(jnp.ones(2), jnp.full(3, jnp.nan), jnp.zeros(
+            (4, 4), bool), gp.Grid.create(shape=(4, 4)), 0.1, 3)),
         (ValueError, "dt", lambda: gp.clear_arc(jnp.ones(2), jnp.zeros(3), jnp.zeros(
             (4, 4), bool), gp.Grid.create(shape=(4, 4)), 0.0, 3)),
     ]

@@ -244,3 +244,7 @@ def test_rgbd_detections_behind_the_laser_scan_are_found(dtype):
     # a point within float rounding of two beams' mid-angle may take either
     assert (got == want).mean() > 0.99 and 50 < want.sum() < 350, ((got != want).sum(),
                                                                    want.sum())
+    # no detections: no flags
+    none = ep.behind_the_scan(jnp.zeros((0, 2), dtype), jnp.asarray(ranges),
+                              jnp.asarray(angles), jnp.asarray(laser_pose))
+    assert none.shape == (0,) and none.dtype == bool
