@@ -429,59 +429,97 @@ def build(grid: Grid, params: CostParams, people_xy: Array, heading: Array, stat
 @jax.jit
 def _build(grid, p, people_xy, heading, status, mask, objects, attended, object_mask, cost,
            pair_distance, pair_angle):
-    # compiled once per shape and dtype, so that eager callers do not dispatch op by op
+    # compiled once per shape and dtype, so that eager callers do not dispatch op by op.
+    # Every person's cost is one decreasing function of their rho^2 (the core and edge cost
+    # are shared by all statuses; the status only sets the extents inside rho^2), and every
+    # zone's one decreasing function of its gap, so the maximum over people is that function of
+    # the smallest rho^2, and over zones of the smallest gap: two exponentials per cell
+    # instead of one per layer and cell, and no [layers, H, W] stack (the exponentials were
+    # most of a closed-loop frame's time). The values are the layer-wise maximum's, exactly;
+    # the gradient goes to the person (zone) attaining it, as the maximum's does.
     n, m = people_xy.shape[0], objects.shape[0]
     xy, head, status, present = _people(people_xy, heading, status, mask, n, cost.dtype)
-    cells = _cell_centers(grid, cost.dtype)
-
-    def one_person(position, phi, s, on):
-        return jnp.where(on, _person_cost(p, cells, position, phi, s), 0.0)
-
-    def zone(a, b, on):
-        return jnp.where(on, _interaction_cost(p, cells, a, b), 0.0)
-
-    layers = [cost[None]]
+    x, y = _cell_axes(grid, cost.dtype)
+    # an absent person (zone) is this far away: its cost underflows to exactly 0, and, unlike
+    # inf, its gradient stays 0 rather than NaN
+    far = jnp.asarray(_FAR, cost.dtype)
+    out = cost
     if n:
-        layers.append(jax.vmap(one_person)(xy, head, status, present))
+        rho2 = jax.vmap(lambda c, phi, s: _rho2(p, x, y, c, phi, s))(xy, head, status)
+        rho2 = jnp.where(present[:, None, None], rho2, far)
+        out = jnp.maximum(out, _cost_of_rho2(p, jnp.min(rho2, 0)))
         # one zone per person, with the nearest person it interacts with: N zones, not N^2
         pairs = _pairs(xy, head, status, present, pair_distance, pair_angle)
         d2 = jnp.where(pairs, jnp.sum((xy[:, None] - xy[None]) ** 2, -1), jnp.inf)
-        partner = jnp.argmin(d2, 1)
-        layers.append(jax.vmap(zone)(xy, xy[partner], jnp.any(pairs, 1)))
-    if n and m:
-        k = jnp.clip(attended, 0, m - 1)
-        on = present & (attended >= 0) & (attended < m) & object_mask[k]
-        layers.append(jax.vmap(zone)(xy, objects[k], on))
-    # one reduction over every layer: its gradient goes to the layer attaining the maximum
-    cost = jnp.max(jnp.concatenate(layers, 0), 0)
-    return cost
+        ends, on = [xy[jnp.argmin(d2, 1)]], [jnp.any(pairs, 1)]
+        if m:
+            k = jnp.clip(attended, 0, m - 1)
+            ends.append(objects[k])
+            on.append(present & (attended >= 0) & (attended < m) & object_mask[k])
+        starts = jnp.concatenate([xy] * len(ends))
+        ends, on = jnp.concatenate(ends), jnp.concatenate(on)
+        gap = jax.vmap(lambda a, b: _zone_gap(p, x, y, a, b))(starts, ends)
+        gap = jnp.where(on[:, None, None], gap, far)
+        out = jnp.maximum(out, _cost_of_gap(p, jnp.min(gap, 0)))
+    return out
 
 
-def _cell_centers(grid, dtype):
+def _cell_axes(grid, dtype):
+    """x [1, W] and y [H, 1] of the cell centres."""
     h, w = grid.shape
     r = jnp.asarray(grid.resolution, dtype)
     o = jnp.asarray(grid.origin, dtype)
     x = o[0] + (jnp.arange(w, dtype=dtype) + 0.5) * r
     y = o[1] + (jnp.arange(h, dtype=dtype) + 0.5) * r
-    return jnp.stack(jnp.broadcast_arrays(x[None, :], y[:, None]), -1)
+    return x[None, :], y[:, None]
 
 
-def _person_cost(p, xy, position, heading, status):
+def _cell_centers(grid, dtype):
+    x, y = _cell_axes(grid, dtype)
+    return jnp.stack(jnp.broadcast_arrays(x, y), -1)
+
+
+_FAR = 1e6
+"""rho^2 and gap (m) of an absent person or zone in `_build`."""
+
+
+def _rho2(p, x, y, position, heading, status):
+    # x and y apart, not stacked in a minor axis of 2: XLA's CPU loops do not vectorise over
+    # a last axis of length 2, and this runs for every person and cell of every frame
     valid = (status >= 0) & (status < NUM_STATUSES)
     e = p.extents[jnp.where(valid, status, STANDING)]
-    q = geometry.unrotate(heading, xy - position)
-    sx = jnp.where(q[..., 0] >= 0, e[0], e[1])
-    sy = jnp.where(q[..., 1] >= 0, e[2], e[3])
-    rho2 = (q[..., 0] / sx) ** 2 + (q[..., 1] / sy) ** 2
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    dx, dy = x - position[0], y - position[1]
+    qx, qy = c * dx + s * dy, c * dy - s * dx            # R(heading)^T (x - p)
+    sx = jnp.where(qx >= 0, e[0], e[1])
+    sy = jnp.where(qy >= 0, e[2], e[3])
+    return (qx / sx) ** 2 + (qy / sy) ** 2
+
+
+def _cost_of_rho2(p, rho2):
     k2 = p.core ** 2
     return jnp.minimum(LETHAL, jnp.exp(jnp.log(p.edge_cost) * (rho2 - k2) / (1.0 - k2)))
 
 
-def _interaction_cost(p, xy, a, b):
+def _person_cost(p, xy, position, heading, status):
+    return _cost_of_rho2(p, _rho2(p, xy[..., 0], xy[..., 1], position, heading, status))
+
+
+def _zone_gap(p, x, y, a, b):
     centre = 0.5 * (a + b)
     radius = 0.5 * p.interaction_scale * geometry.safe_norm(b - a)
-    gap = jnp.maximum(geometry.safe_norm(xy - centre) - radius, 0.0)
+    d2 = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
+    # the norm's gradient at 0 (a cell centre on the zone's centre) is 0, as `safe_norm`'s
+    d = jnp.sqrt(jnp.where(d2 > 0, d2, 1.0))
+    return jnp.maximum(jnp.where(d2 > 0, d, 0.0) - radius, 0.0)
+
+
+def _cost_of_gap(p, gap):
     return jnp.exp(-0.5 * (gap / p.interaction_margin) ** 2)
+
+
+def _interaction_cost(p, xy, a, b):
+    return _cost_of_gap(p, _zone_gap(p, xy[..., 0], xy[..., 1], a, b))
 
 
 def _pairs(xy, heading, status, present, pair_distance, pair_angle):

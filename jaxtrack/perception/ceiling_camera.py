@@ -11,6 +11,8 @@ for the robot's RGB-D camera, 0.2 m for the laser). This module holds that camer
   floor plane :math:`z = 0` to pixels and back;
 - `project_people`: the bounding boxes of people modelled as upright cylinders, and which of
   them the camera sees (in front, in the image, in range, not hidden by nearer people);
+- `visible_among`: whether people at query points would be visible among the others (the
+  occlusion test alone, for many queries against the same people);
 - `boxes_to_floor`: the seed's measurement, the bottom centre of a box (the feet) on the floor;
 - `detect`: a simulated detector with the seed's noise, misses and Poisson clutter, at a fixed
   capacity with a mask.
@@ -58,7 +60,7 @@ Array = jax.Array
 
 __all__ = ["CeilingCamera", "Projection", "look_at", "ground_homography",
            "inverse_ground_homography", "floor_to_image", "image_to_floor", "in_footprint",
-           "project_people", "boxes_to_floor", "detect"]
+           "project_people", "visible_among", "boxes_to_floor", "detect"]
 
 # A point nearer than this (m) to the camera's image plane counts as behind it: its projection
 # is unbounded.
@@ -310,6 +312,57 @@ def project_people(camera: CeilingCamera, people_xy: Array, heights: Array, radi
                         jnp.asarray(min_in_image, dtype), rim_points, occlusion_grid)
 
 
+def visible_among(camera: CeilingCamera, query_xy: Array, query_heights: Array,
+                  query_radii: Array, people_xy: Array, heights: Array, radii: Array,
+                  may_occlude: Array, *, occluders: Array | None = None, max_occlusion=0.5,
+                  min_in_image=0.5, rim_points: int = 32, occlusion_grid: int = 8) -> Array:
+    r"""Whether a person at each query point would be visible among other people ([Q] bools).
+
+    Query *q* is visible when `project_people` of the people plus *q* alone, with the people
+    masked by ``may_occlude[q]``, finds *q* visible: in front of the camera, in its image
+    (``min_in_image``) and range, and covered by at most ``max_occlusion`` by the boxes of the
+    allowed people nearer the nadir and by the static ``occluders``. The people's boxes are
+    projected once for all queries, and only the queries' occlusion is measured, instead of
+    one `project_people` of P + 1 people (and their P^2 occlusion tests) per query.
+
+    Args:
+      camera: `CeilingCamera`.
+      query_xy: [Q, 2] floor points; query_heights, query_radii: [Q] their cylinders.
+      people_xy, heights, radii: [P, 2], [P], [P] the people who may hide the queries.
+      may_occlude: [Q, P] bools, the people that may hide each query (e.g. not the track on
+        the query itself); a person no row allows is not projected.
+      occluders, max_occlusion, min_in_image, rim_points, occlusion_grid: `project_people`.
+
+    Returns:
+      [Q] bools.
+
+    Example:
+      >>> seen = visible_among(cam, jnp.array([[4.0, 0.0]]), jnp.array([1.7]),
+      ...                      jnp.array([0.25]), jnp.array([[3.0, 0.0]]), jnp.array([1.8]),
+      ...                      jnp.array([0.25]), jnp.array([[True]]))     # [False]: hidden
+    """
+    _checks.check_shape("query_xy", query_xy, (None, 2), "[Q, 2] floor points")
+    _checks.check_shape("people_xy", people_xy, (None, 2), "[P, 2] floor positions")
+    Q, P = _checks.shape_of(query_xy)[0], _checks.shape_of(people_xy)[0]
+    _checks.check_shape("may_occlude", may_occlude, (Q, P), "[Q, P] bools")
+    if _dtype_of(may_occlude) != np.bool_:
+        raise TypeError(f"may_occlude must hold bools; got dtype {_dtype_of(may_occlude)}")
+    _, dtype = _check_people(camera, query_xy, query_heights, query_radii, np.ones(Q, bool))
+    # only the people some query allows are checked (the others may hold anything)
+    _check_people(camera, people_xy, heights, radii, jnp.any(jnp.asarray(may_occlude), 0))
+    occluders = _check_occluders(occluders, dtype)
+    _check_fraction("max_occlusion", max_occlusion)
+    _check_fraction("min_in_image", min_in_image)
+    _check_count("rim_points", rim_points, 3)
+    _check_count("occlusion_grid", occlusion_grid, 1)
+    cast = lambda a: jnp.asarray(a, dtype)  # noqa: E731
+    return _visible_among_jit(_cast(camera, dtype), cast(query_xy), cast(query_heights),
+                              cast(query_radii), cast(people_xy), cast(heights), cast(radii),
+                              jnp.asarray(may_occlude, bool), occluders,
+                              cast(max_occlusion), cast(min_in_image), rim_points,
+                              occlusion_grid)
+
+
 def boxes_to_floor(camera: CeilingCamera, boxes: Array, feet_offset=0.0, *,
                    upright: bool = False) -> Array:
     r"""Floor positions [N, 2] of people from their boxes [N, 4] (seed 003's measurement).
@@ -493,8 +546,9 @@ def _in_footprint(camera, xy):
 _in_footprint_jit = jax.jit(_in_footprint)
 
 
-def _project(camera, xy, heights, radii, mask, occluders, max_occlusion, min_in_image,
-             rim_points, grid):
+def _boxes(camera, xy, heights, radii, mask, min_in_image, rim_points):
+    """The per-person part of `_project`: (ok, boxes, feet, distance, in_front, in_image,
+    in_range, clipped boxes)."""
     dtype = xy.dtype
     ok = (mask & jnp.all(jnp.isfinite(xy), -1) & jnp.isfinite(heights) & (heights > 0)
           & jnp.isfinite(radii) & (radii >= 0))
@@ -522,24 +576,56 @@ def _project(camera, xy, heights, radii, mask, occluders, max_occlusion, min_in_
     area_in = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
     enough = area_in >= min_in_image * area
     in_image = in_front & _inside_image(camera, feet) & enough & (area_in > 0)
+    return ok, boxes, feet, distance, in_front, in_image, in_range, clipped
 
-    # Occlusion: cell centres of each in-image box, covered by a nearer person or an occluder.
+
+def _occlusion(clipped, distance, boxes, in_front, occluder_distance, may_occlude, occluders,
+               grid):
+    """[Q] covered fractions of the clipped boxes [Q, 4] at floor distances [Q] by the boxes
+    [P, 4] nearer the nadir (``occluder_distance`` [P]) that are in front and allowed
+    (``may_occlude`` [Q, P]), and by the static occluders [O, 4]."""
+    dtype = clipped.dtype
+    # cell centres of each box, covered by a nearer person or an occluder
     t = (jnp.arange(grid, dtype=dtype) + 0.5) / grid
-    su = clipped[:, 0, None] + t * (clipped[:, 2] - clipped[:, 0])[:, None]     # [P, G]
+    su = clipped[:, 0, None] + t * (clipped[:, 2] - clipped[:, 0])[:, None]     # [Q, G]
     sv = clipped[:, 1, None] + t * (clipped[:, 3] - clipped[:, 1])[:, None]
     su = jnp.broadcast_to(su[:, :, None], su.shape + (grid,)).reshape(-1, grid * grid)
     sv = jnp.broadcast_to(sv[:, None, :], sv.shape[:1] + (grid, grid)).reshape(-1, grid * grid)
 
-    def inside(b, u, v):  # boxes [B, 4], samples [P, S] -> [P, B, S]
+    def inside(b, u, v):  # boxes [B, 4], samples [Q, S] -> [Q, B, S]
         return ((u[:, None] >= b[None, :, 0, None]) & (u[:, None] <= b[None, :, 2, None])
                 & (v[:, None] >= b[None, :, 1, None]) & (v[:, None] <= b[None, :, 3, None]))
 
-    nearer = in_front[None, :] & (distance[None, :] < distance[:, None])          # [i, j]
+    nearer = may_occlude & in_front[None, :] & (occluder_distance[None, :] < distance[:, None])
     covered = jnp.any(nearer[:, :, None] & inside(boxes, su, sv), 1)
     covered = covered | jnp.any(inside(occluders, su, sv), 1)
-    occlusion = jnp.mean(covered.astype(dtype), -1)
+    return jnp.mean(covered.astype(dtype), -1)
+
+
+def _project(camera, xy, heights, radii, mask, occluders, max_occlusion, min_in_image,
+             rim_points, grid):
+    _, boxes, feet, distance, in_front, in_image, in_range, clipped = _boxes(
+        camera, xy, heights, radii, mask, min_in_image, rim_points)
+    everyone = jnp.ones((xy.shape[0], xy.shape[0]), bool)
+    occlusion = _occlusion(clipped, distance, boxes, in_front, distance, everyone, occluders,
+                           grid)
     visible = in_front & in_image & in_range & (occlusion <= max_occlusion)
     return Projection(boxes, feet, distance, in_front, in_image, in_range, occlusion, visible)
+
+
+def _visible_among(camera, query_xy, query_heights, query_radii, xy, heights, radii,
+                   may_occlude, occluders, max_occlusion, min_in_image, rim_points, grid):
+    _, q_boxes, _, q_distance, q_front, q_image, q_range, q_clipped = _boxes(
+        camera, query_xy, query_heights, query_radii, jnp.ones(query_xy.shape[0], bool),
+        min_in_image, rim_points)
+    ok, boxes, _, distance, in_front, _, _, _ = _boxes(
+        camera, xy, heights, radii, jnp.any(may_occlude, 0), min_in_image, rim_points)
+    occlusion = _occlusion(q_clipped, q_distance, boxes, in_front, distance, may_occlude & ok,
+                           occluders, grid)
+    return q_front & q_image & q_range & (occlusion <= max_occlusion)
+
+
+_visible_among_jit = jax.jit(_visible_among, static_argnames=("rim_points", "grid"))
 
 
 _project_jit = jax.jit(_project, static_argnames=("rim_points", "grid"))

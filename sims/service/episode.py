@@ -420,14 +420,22 @@ class Frame(NamedTuple):
 
 def _inflate(cost: Array, cells: int) -> Array:
     """Cell-wise maximum over a disc of ``cells`` cells: the cost to the robot's *centre* of a
-    person cost defined for its body (its configuration space)."""
+    person cost defined for its body (its configuration space).
+
+    The disc is a stack of rows: row ``di`` spans the columns ``|dj| <= w(di)``, so the maximum
+    is taken along the rows first (one running maximum per half-width), then across them:
+    about 4 * cells shifted copies of the map instead of the disc's pi * cells^2."""
     H, W = cost.shape
+    half = [math.isqrt(cells * cells - di * di) for di in range(cells + 1)]
     pad = jnp.pad(cost, cells, constant_values=0.0)
+    rows = {0: pad}
+    run = pad
+    for w in range(1, max(half) + 1):
+        run = jnp.maximum(run, jnp.maximum(jnp.roll(pad, w, 1), jnp.roll(pad, -w, 1)))
+        rows[w] = run
     out = cost
     for di in range(-cells, cells + 1):
-        for dj in range(-cells, cells + 1):
-            if (di, dj) != (0, 0) and di * di + dj * dj <= cells * cells:
-                out = jnp.maximum(out, pad[cells + di:cells + di + H, cells + dj:cells + dj + W])
+        out = jnp.maximum(out, rows[half[abs(di)]][cells + di:cells + di + H, cells:cells + W])
     return out
 
 
@@ -550,31 +558,28 @@ def make_rollout(config: ServiceConfig):
         """[M] robot detections a ceiling camera would see: in its room and view, and not
         hidden behind the confirmed tracks (the cameras' occlusion model with the tracked
         people as occluders)."""
-        K = tracks.mean.shape[0]
         others = tracks.mean[:, :2]
         others_on = tracks.status == tracker.CONFIRMED
-        heights = jnp.full(K + 1, _STATURE, dtype)
-        radii = jnp.full(K + 1, _BODY_RADIUS, dtype)
+        # the ceiling cameras' own slots come first; only the robot's are checked
+        robot = zs[_CAMERA_SLOTS * len(_CAMERA_POSES):]
+        M = robot.shape[0]
+        # a track on the detection itself is the person, not an occluder
+        near = jnp.sum((others[None] - robot[:, None]) ** 2, -1) < 0.5 ** 2
+        may_occlude = others_on[None] & ~near
 
-        def seen_by(cam, room, z):
-            people = jnp.concatenate([others, z[None]])
-            # a track on the detection itself is the person, not an occluder
-            near = jnp.sum((others - z) ** 2, -1) < 0.5 ** 2
-            mask = jnp.concatenate([others_on & ~near, jnp.ones(1, bool)])
+        def seen_by(cam, room):
             # with a margin: a point a camera sees half hidden, or at its image's edge, may be
             # a person it misses in every frame (the occlusion here is computed from the
             # tracks, and coarsely); the robot's detection there may start a track
-            proj = ceiling_camera.project_people(cam, people, heights, radii, mask,
-                                                 rim_points=8, occlusion_grid=4,
-                                                 max_occlusion=COVERED_OCCLUSION,
-                                                 min_in_image=0.75)
-            return proj.visible[-1] & _in_box(room, z)
+            visible = ceiling_camera.visible_among(
+                cam, robot, jnp.full(M, _STATURE, dtype), jnp.full(M, _BODY_RADIUS, dtype),
+                others, jnp.full(others.shape[0], _STATURE, dtype),
+                jnp.full(others.shape[0], _BODY_RADIUS, dtype), may_occlude, rim_points=8,
+                occlusion_grid=4, max_occlusion=COVERED_OCCLUSION, min_in_image=0.75)
+            return visible & _in_box(room, robot)
 
-        # the ceiling cameras' own slots come first; only the robot's are checked
-        robot = zs[_CAMERA_SLOTS * len(_CAMERA_POSES):]
-        seen = jax.vmap(lambda z: jnp.any(jax.vmap(seen_by, (0, 0, None))(
-            cams, jnp.asarray(rooms, dtype), z)))(robot)
-        return jnp.concatenate([jnp.zeros(zs.shape[0] - robot.shape[0], bool), seen])
+        seen = jnp.any(jax.vmap(seen_by)(cams, jnp.asarray(rooms, dtype)), 0)
+        return jnp.concatenate([jnp.zeros(zs.shape[0] - M, bool), seen])
 
     def track(tracks, dets, in_group, with_ceiling, params):
         """One tracker step on the detections of the sensors ``in_group`` ([3] bool, by sensor

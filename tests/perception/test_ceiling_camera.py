@@ -163,6 +163,56 @@ def test_a_static_occluder_box_hides_a_person():
     np.testing.assert_array_equal(np.asarray(proj.visible)[:2], [True, False])
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_visible_among_equals_project_people_with_each_query_added(dtype):
+    """The reference: for each query, `project_people` of the allowed people plus the query
+    (the query last); its visibility is the query's."""
+    rng = np.random.default_rng(3)
+    Q = 12
+    for trial in range(4):
+        xy, h, r, _ = people(rng.uniform([1.0, -3.0], [8.0, 3.0], (P, 2)), dtype=dtype)
+        h = (h * rng.uniform(0.8, 1.1, P)).astype(dtype)
+        query = rng.uniform([1.0, -3.0], [8.0, 3.0], (Q, 2)).astype(dtype)
+        query[:3] = xy[:3] + np.array([0.9, 0.1], dtype)          # just behind someone
+        qh = np.full(Q, HEIGHT, dtype)
+        qr = np.full(Q, RADIUS, dtype)
+        allowed = rng.random((Q, P)) < 0.8
+        allowed[:, -1] = False
+        xy[-1] = np.nan                                           # no row allows it
+        shelf = np.array([[300.0, 300.0, 340.0, 480.0]], dtype) if trial % 2 else None
+        kw = dict(occluders=shelf, max_occlusion=0.25, min_in_image=0.75, rim_points=8,
+                  occlusion_grid=4)
+        got = np.asarray(cc.visible_among(CAM, query, qh, qr, xy, h, r, allowed, **kw))
+        want = [bool(project(CAM, np.concatenate([xy, query[q:q + 1]]),
+                             np.append(h, qh[q]), np.append(r, qr[q]),
+                             np.append(allowed[q], True), **kw).visible[-1])
+                for q in range(Q)]
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < Q, "both outcomes occur"
+    # no people: only the camera's view decides
+    none = cc.visible_among(CAM, query, qh, qr, np.zeros((0, 2), dtype), np.zeros(0, dtype),
+                            np.zeros(0, dtype), np.zeros((Q, 0), bool))
+    alone = [bool(project(CAM, query[q:q + 1], qh[q:q + 1], qr[q:q + 1],
+                          np.ones(1, bool)).visible[0]) for q in range(Q)]
+    np.testing.assert_array_equal(np.asarray(none), alone)
+
+
+def test_visible_among_rejects_bad_input():
+    xy, h, r, _ = people([[3.0, 0.0], [4.0, 1.0]])
+    q = np.array([[5.0, 0.0]])
+    ok = np.ones((1, P), bool)
+    with pytest.raises(ValueError, match="may_occlude"):
+        cc.visible_among(CAM, q, [1.7], [0.25], xy, h, r, ok[:, :2])
+    with pytest.raises(TypeError, match="may_occlude"):
+        cc.visible_among(CAM, q, [1.7], [0.25], xy, h, r, ok.astype(int))
+    with pytest.raises(ValueError, match="people_xy"):
+        cc.visible_among(CAM, q, [1.7], [0.25], xy, h, r, ok)    # a NaN person allowed
+    with pytest.raises(ValueError, match="query_xy"):
+        cc.visible_among(CAM, q[:, :1], [1.7], [0.25], xy, h, r, ok)
+    with pytest.raises(ValueError, match="heights"):
+        cc.visible_among(CAM, q, [-1.7], [0.25], xy, h, r, ok & False)
+
+
 def test_people_outside_the_field_of_view_or_range_are_not_visible():
     xy = np.array([[4.0, 0.0],      # seen
                    [-3.0, 0.0],     # behind the camera

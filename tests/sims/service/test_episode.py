@@ -201,6 +201,23 @@ def test_each_room_is_covered_by_a_ceiling_camera():
         assert seen.mean() > 0.9, room
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_inflation_is_the_maximum_over_a_disc_of_cells(dtype):
+    """`_inflate` (rows of the disc, then across them) against scipy's maximum filter with the
+    disc as its footprint (zeros beyond the map)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(2)
+    cost = (rng.random((23, 31)) ** 6).astype(dtype)
+    for cells in (0, 1, 2, 4):
+        i, j = np.mgrid[-cells:cells + 1, -cells:cells + 1]
+        disc = i * i + j * j <= cells * cells
+        want = ndimage.maximum_filter(cost, footprint=disc, mode="constant", cval=0.0)
+        got = np.asarray(ep._inflate(jnp.asarray(cost), cells))
+        assert got.dtype == dtype
+        np.testing.assert_array_equal(got, want)
+
+
 def test_bad_configurations_are_refused(scene):
     for kw, match in ((dict(experiment="dance"), "experiment"),
                       (dict(perception="radar"), "perception"),
