@@ -182,6 +182,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="drop the RGB-D detections behind the laser's range on their bearing "
                           "(the simulated detector's false positives otherwise fall through "
                           "walls)")
+    svc.add_argument("--replan-every", type=int, default=5, metavar="FRAMES",
+                     help="navigation: frames between full solves of the planner's distance "
+                          "field, refined in the frames between (fewer solves run faster)")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -447,6 +450,8 @@ def main(argv: list[str] | None = None) -> int:
                              f"{args.interest!r}")
         if args.settle < 0 or not 0.0 <= args.still_at_end <= args.duration:
             parser.error("--settle must be >= 0 and --still-at-end in [0, --duration]")
+        if args.replan_every < 1:
+            parser.error(f"--replan-every must be >= 1; got {args.replan_every}")
         if args.out is not None:
             _check_writable(parser, args.out)
         _import_mjx_quietly()
@@ -457,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
                     args.animate, heading_filter=args.heading_filter, pan=args.pan,
                     reverse=args.reverse, settle_iterations=args.settle,
                     still_at_end=args.still_at_end, heading_frame=args.heading_frame,
-                    line_of_sight=args.line_of_sight)
+                    line_of_sight=args.line_of_sight, replan_every=args.replan_every)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
