@@ -185,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     svc.add_argument("--replan-every", type=int, default=5, metavar="FRAMES",
                      help="navigation: frames between full solves of the planner's distance "
                           "field, refined in the frames between (fewer solves run faster)")
+    svc.add_argument("--cell", type=float, default=0.1, metavar="METRES",
+                     help="navigation: the costmap's and planner's cell size (0.05-0.5; 0.2 "
+                          "runs about twice as fast)")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
@@ -452,6 +455,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--settle must be >= 0 and --still-at-end in [0, --duration]")
         if args.replan_every < 1:
             parser.error(f"--replan-every must be >= 1; got {args.replan_every}")
+        if not 0.05 <= args.cell <= 0.5:
+            parser.error(f"--cell must be in [0.05, 0.5] m; got {args.cell}")
         if args.out is not None:
             _check_writable(parser, args.out)
         _import_mjx_quietly()
@@ -462,7 +467,8 @@ def main(argv: list[str] | None = None) -> int:
                     args.animate, heading_filter=args.heading_filter, pan=args.pan,
                     reverse=args.reverse, settle_iterations=args.settle,
                     still_at_end=args.still_at_end, heading_frame=args.heading_frame,
-                    line_of_sight=args.line_of_sight, replan_every=args.replan_every)
+                    line_of_sight=args.line_of_sight, replan_every=args.replan_every,
+                    cell=args.cell)
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):
