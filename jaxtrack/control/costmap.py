@@ -434,9 +434,9 @@ def _build(grid, p, people_xy, heading, status, mask, objects, attended, object_
     # are shared by all statuses; the status only sets the extents inside rho^2), and every
     # zone's one decreasing function of its gap, so the maximum over people is that function of
     # the smallest rho^2, and over zones of the smallest gap: two exponentials per cell
-    # instead of one per layer and cell, and no [layers, H, W] stack (the exponentials were
-    # most of a closed-loop frame's time). The values are the layer-wise maximum's, exactly;
-    # the gradient goes to the person (zone) attaining it, as the maximum's does.
+    # instead of one per layer and cell, and no [layers, H, W] stack. The values are the
+    # layer-wise maximum's (up to rounding); the gradient goes to the person (zone) attaining
+    # it, as the maximum's does.
     n, m = people_xy.shape[0], objects.shape[0]
     xy, head, status, present = _people(people_xy, heading, status, mask, n, cost.dtype)
     x, y = _cell_axes(grid, cost.dtype)
