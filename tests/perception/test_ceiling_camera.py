@@ -211,6 +211,17 @@ def test_visible_among_rejects_bad_input():
         cc.visible_among(CAM, q[:, :1], [1.7], [0.25], xy, h, r, ok)
     with pytest.raises(ValueError, match="heights"):
         cc.visible_among(CAM, q, [-1.7], [0.25], xy, h, r, ok & False)
+    with pytest.raises(ValueError, match="query_xy"):
+        cc.visible_among(CAM, q * np.nan, [1.7], [0.25], xy, h, r, ok & False)
+    # no queries: an empty answer; under jit a NaN query is not visible
+    empty = cc.visible_among(CAM, np.zeros((0, 2)), np.zeros(0), np.zeros(0), xy, h, r,
+                             np.zeros((0, P), bool))
+    assert empty.shape == (0,) and empty.dtype == bool
+    seen = jax.jit(lambda q: cc.visible_among(CAM, q, jnp.array([1.7, 1.7]),
+                                              jnp.array([0.25, 0.25]), xy, h, r,
+                                              np.zeros((2, P), bool)))(
+        jnp.array([[np.nan, 0.0], [5.0, 0.0]]))
+    np.testing.assert_array_equal(np.asarray(seen), [False, True])
 
 
 def test_people_outside_the_field_of_view_or_range_are_not_visible():
