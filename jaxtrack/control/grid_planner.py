@@ -279,7 +279,6 @@ def refine(dist: Array, cost: Array, goal_cell: Array, sweeps: int = 2, *,
 @functools.partial(jax.jit, static_argnames=("sweeps", "connectivity"))
 def _refine(dist, cost, goal, sweeps, connectivity, lethal, cell):
     H, W = cost.shape
-    cost = _materialised(cost)
     passable = _passable(cost, lethal)
     edges = _half_edges(cost, passable, connectivity, cell)
     goal = goal.astype(jnp.int32)
@@ -543,7 +542,6 @@ def _field(cost, goal, connectivity, lethal, cell, method):
     """(distances [H, W], rounds) by Bellman-Ford (module docstring)."""
     H, W = cost.shape
     dtype = cost.dtype
-    cost = _materialised(cost)
     passable = _passable(cost, lethal)
     goal = goal.astype(jnp.int32)
     inside = jnp.all((goal >= 0) & (goal < jnp.array([H, W])))
@@ -590,7 +588,6 @@ def _field(cost, goal, connectivity, lethal, cell, method):
 @functools.partial(jax.jit, static_argnames=("max_len", "connectivity"))
 def _descend(dist, start, max_len, cost, connectivity, lethal, cell):
     H, W = dist.shape
-    cost = _materialised(cost)
     offsets = jnp.asarray(_offsets(connectivity), jnp.int32)
     hi = jnp.array([H - 1, W - 1], jnp.int32)
     start = jnp.clip(start.astype(jnp.int32), 0, hi)
@@ -649,17 +646,6 @@ def _shift(a, di, dj, fill):
     H, W = a.shape
     p = jnp.pad(a, 1, constant_values=fill)
     return p[1 + di:1 + di + H, 1 + dj:1 + dj + W]
-
-
-def _materialised(cost):
-    """``cost``, computed once into memory before the planner reads it.
-
-    Inside a larger jitted step (a closed loop that builds its costmap and plans on it in the
-    same frame), XLA may fuse an elementwise producer into each of its consumers, and the
-    planner reads shifted copies of the costmap many times. The barrier keeps the costmap one
-    array; values and gradients pass through unchanged. (In the service scene it measured no
-    faster: a guard, not a speed-up.)"""
-    return lax.optimization_barrier(cost)
 
 
 def _half_edges(cost, passable, connectivity, cell):
