@@ -6,14 +6,15 @@ points, each within the cluster tolerance of the next, joins them. That is the c
 components of the graph whose edges join points closer than the tolerance (DBSCAN with one
 point per core; PCL's ``EuclideanClusterExtraction``).
 
-The components are found by min-label propagation with pointer jumping, which needs only
-gathers and so runs batched under `vmap` on any device: every point starts with its own index
-as label; each round it takes the smallest label among itself and its neighbours,
-:math:`\ell_i \leftarrow \min(\ell_i, \min_{j \in N(i)} \ell_j)`, then jumps,
-:math:`\ell_i \leftarrow \ell_{\ell_i}`, until no label changes. Every label stays the index of a
-point of the same component, so the fixed point is each component's smallest index. The
-neighbour lists come from `jaxtrack.perception.voxel_grid.grid_neighbours` (or any [V, K]
-index array with -1 for "none").
+The components are found by min-label propagation with hooking and pointer jumping, which
+needs only gathers and scatter-minima, and so runs batched under `vmap` on any device: every
+point starts with its own index as label; each round it takes the smallest label among itself
+and its neighbours, :math:`\ell_i \leftarrow \min(\ell_i, \min_{j \in N(i)} \ell_j)`, then
+hooks (the point :math:`\ell_i` names takes the smallest new label of the points naming it)
+and jumps, :math:`\ell_i \leftarrow \ell_{\ell_i}`, until no label changes. Every label stays
+the index of a point of the same component, so the fixed point is each component's smallest
+index. The neighbour lists come from `jaxtrack.perception.voxel_grid.grid_neighbours` (or any
+[V, K] index array with -1 for "none").
 
 The components are then ranked by size (largest first, ties by smallest index), those below
 ``min_size`` discarded, and the first ``capacity`` kept.
@@ -90,11 +91,23 @@ def connected_components(neighbours: Array, mask: Array, *, symmetric: bool = Fa
             # Push as well: an edge listed only at i (j's list lacks i) must still lower j.
             new = jnp.minimum(new, jnp.full(v + 1, none).at[jnp.where(ok, safe, v)].min(
                 jnp.where(ok, labels[:, None], none))[:v])
+        # Hooking (Shiloach and Vishkin): the point a label names takes the smallest new label
+        # among the points that named it, and each point then takes its label's. Labels stay
+        # indices of points of the same component, so the fixed point is unchanged; on the
+        # RGB-D frames the rounds fall from 6-28 to 3-5.
+        new = jnp.minimum(new, _hook(labels, new, v)[:v])
+        new = jnp.minimum(new, _hook(labels, new, v)[new])
         new = jump(jump(new))
         return new, jnp.any(new != labels)
 
     labels, _ = lax.while_loop(lambda s: s[1], body, (labels0, jnp.asarray(v > 0)))
     return labels
+
+
+def _hook(labels, new, v):
+    """[V + 1] the smallest ``new`` among the points whose ``labels`` name each point (row V
+    collects the masked-out points)."""
+    return jnp.full(v + 1, v, jnp.int32).at[labels].min(new)
 
 
 def euclidean_clusters(neighbours: Array, mask: Array, *, min_size: int = 1,

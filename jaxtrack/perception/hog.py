@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.resources
+import math
 from typing import NamedTuple
 
 import jax
@@ -135,8 +136,10 @@ def crop(image: Array, box: Array, config: HOGConfig = HOGConfig()) -> Array:
     fr = (r - r0)[:, None, None]
     fc = (c - c0)[None, :, None]
     r1, c1 = jnp.minimum(r0 + 1, H - 1), jnp.minimum(c0 + 1, W - 1)
-    top = img[r0][:, c0] * (1 - fc) + img[r0][:, c1] * fc
-    bot = img[r1][:, c0] * (1 - fc) + img[r1][:, c1] * fc
+    # the window's own pixels (img[r0][:, c0] would first copy whole image rows)
+    r0, r1, c0, c1 = r0[:, None], r1[:, None], c0[None], c1[None]
+    top = img[r0, c0] * (1 - fc) + img[r0, c1] * fc
+    bot = img[r1, c0] * (1 - fc) + img[r1, c1] * fc
     return top * (1 - fr) + bot * fr
 
 
@@ -159,20 +162,36 @@ def hog(window: Array, config: HOGConfig = HOGConfig()) -> Array:
     dtype = img.dtype if jnp.issubdtype(img.dtype, jnp.floating) else jnp.float32
     img = img.astype(dtype)
     R, C = img.shape[:2]
-    g_row = jnp.zeros_like(img).at[1:-1].set(img[2:] - img[:-2])
-    g_col = jnp.zeros_like(img).at[:, 1:-1].set(img[:, 2:] - img[:, :-2])
-    mag = jnp.hypot(g_row, g_col)
-    best = jnp.argmax(mag, axis=-1)[..., None]                       # channel of largest gradient
-    g_row = jnp.take_along_axis(g_row, best, -1)[..., 0]
-    g_col = jnp.take_along_axis(g_col, best, -1)[..., 0]
-    mag = jnp.take_along_axis(mag, best, -1)[..., 0]
+    # Colour planes first and one plane at a time: XLA's CPU loops do not vectorise over a
+    # trailing axis of 3 channels or 9 bins.
+    planes = jnp.moveaxis(img, -1, 0)                                  # [Ch, R, C]
+    g_row = jnp.pad(planes[:, 2:] - planes[:, :-2], ((0, 0), (1, 1), (0, 0)))
+    g_col = jnp.pad(planes[:, :, 2:] - planes[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
+    # (hypot, not squares: 8-bit images tie often, and the tie must break as skimage's)
+    magnitude = jnp.hypot(g_row, g_col)
+    gr, gc, mag = g_row[0], g_col[0], magnitude[0]
+    for ch in range(1, planes.shape[0]):    # the first channel of the largest magnitude
+        larger = magnitude[ch] > mag
+        gr = jnp.where(larger, g_row[ch], gr)
+        gc = jnp.where(larger, g_col[ch], gc)
+        mag = jnp.where(larger, magnitude[ch], mag)
+    # The unsigned orientation's bin, floor(angle / (180 / n)) with the angle of (gc, gr) in
+    # [0, 180): the gradient is turned into the upper half-plane, and the bin counts the
+    # boundaries k 180 / n it lies at or past, sign(sin(angle - theta_k)). The same bins as
+    # skimage's arctan2, which took 90 % of the descriptor's time on a CPU.
     n = config.orientations
-    angle = jnp.mod(jnp.rad2deg(jnp.arctan2(g_row, g_col)), 180.0)
-    b = jnp.clip(jnp.floor(angle / (180.0 / n)), 0, n - 1).astype(jnp.int32)
+    flip = (gr < 0) | ((gr == 0) & (gc < 0))
+    gr, gc = jnp.where(flip, -gr, gr), jnp.where(flip, -gc, gc)
+    b = jnp.zeros(gr.shape, jnp.int32)
+    for k in range(1, n):
+        theta = math.pi * k / n
+        b += (gr * math.cos(theta) - gc * math.sin(theta) >= 0).astype(jnp.int32)
     cs = config.cell
     nr, nc = R // cs, C // cs
-    onehot = jax.nn.one_hot(b, n, dtype=dtype) * mag[..., None]        # [R, C, n]
-    cells = onehot[:nr * cs, :nc * cs].reshape(nr, cs, nc, cs, n).sum((1, 3)) / (cs * cs)
+    cell = (jnp.arange(nr * cs)[:, None] // cs) * nc + jnp.arange(nc * cs)[None] // cs
+    seg = (cell * n + b[:nr * cs, :nc * cs]).reshape(-1)
+    cells = jax.ops.segment_sum(mag[:nr * cs, :nc * cs].reshape(-1), seg, nr * nc * n,
+                                indices_are_sorted=False).reshape(nr, nc, n) / (cs * cs)
     bs = config.block
     br, bc = nr - bs + 1, nc - bs + 1
     blocks = jnp.stack([jnp.stack([cells[i:i + bs, j:j + bs] for j in range(bc)])

@@ -241,12 +241,14 @@ def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
     renumber = jnp.full(v + 1, -1, jnp.int32).at[rows].set(
         jnp.arange(capacity, dtype=jnp.int32)).at[v].set(-1)
     taken = rows < v
-    safe = jnp.minimum(rows, max(v - 1, 0))
+    # each kept voxel's new row, `capacity` for none
+    dest = jnp.where(renumber[:v] >= 0, renumber[:v], capacity)
 
     def rows_of(x, fill):
-        if v == 0:
-            return jnp.full((capacity,) + x.shape[1:], fill, x.dtype)
-        return jnp.where(taken.reshape((-1,) + (1,) * (x.ndim - 1)), x[safe], fill)
+        # A scatter, not a gather of the kept rows: XLA fuses a gather into its consumers,
+        # and the neighbour search's gathers then recomputed it for each neighbour (3x the
+        # time of the rest of a detector frame).
+        return jnp.full((capacity + 1,) + x.shape[1:], fill, x.dtype).at[dest].set(x)[:capacity]
 
     lost = jnp.sum(jnp.where(keep, grid.counts, 0)) - jnp.sum(rows_of(grid.counts, 0))
     return VoxelGrid(points=rows_of(grid.points, 0), colours=rows_of(grid.colours, 0),
@@ -279,14 +281,26 @@ def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
                        np.int32)                                    # [K, 3]
     subset = keep is not None
     keep = grid.mask & keep if subset else grid.mask
-    nb = grid.cells[:, None, :] + offsets[None]                     # [V, K, 3]
-    inside = jnp.all((nb >= 0) & (nb < jnp.asarray(spec.shape)), -1)
-    linear = (nb[..., 0] * spec.shape[1] + nb[..., 1]) * spec.shape[2] + nb[..., 2]
-    rows = jnp.where(inside, grid.lookup[jnp.where(inside, linear, 0)], -1)
+    # A lookup of the voxels' rows in a box padded by r empty cells on every side, scattered
+    # from the voxels themselves: every neighbour cell's index is then valid, with no bounds
+    # test per neighbour, and the scatter is materialised (XLA fused the bounds test, and a
+    # gather or pad of ``grid.lookup``, into every gather below). The coordinates go one
+    # axis at a time: XLA's CPU loops do not vectorise over a trailing axis of 3 ([V, K, 3]
+    # arrays made this 4x slower).
+    shape = tuple(n + 2 * r for n in spec.shape)
+    total = math.prod(shape)
+    v = grid.mask.shape[0]
+    cells = [jnp.where(grid.mask, grid.cells[:, a], 0) + r for a in range(3)]
+    base = (cells[0] * shape[1] + cells[1]) * shape[2] + cells[2]
+    lookup = jnp.full(total + 1, -1, jnp.int32).at[jnp.where(grid.mask, base, total)].set(
+        jnp.arange(v, dtype=jnp.int32))
+    step = (offsets[:, 0] * shape[1] + offsets[:, 1]) * shape[2] + offsets[:, 2]
+    rows = lookup[base[:, None] + step[None]]
+    coords = [grid.points[:, a] for a in range(3)]
     ok = (rows >= 0) & keep[:, None]
     safe = jnp.maximum(rows, 0)
     if subset:   # (the lookup holds occupied rows only: without a subset they all take part)
         ok &= keep[safe]
-    d2 = jnp.sum((grid.points[safe] - grid.points[:, None, :]) ** 2, -1)
+    d2 = sum((c[safe] - c[:, None]) ** 2 for c in coords)
     ok &= d2 <= radius ** 2
     return jnp.where(ok, rows, -1)

@@ -63,6 +63,36 @@ def test_components_equal_scipy_on_random_asymmetric_graphs():
             assert lab == np.flatnonzero(labels == lab).min()
 
 
+def test_components_equal_scipy_on_random_symmetric_graphs_with_long_paths():
+    # shuffled chains and trees: every component's smallest index sits far along its paths,
+    # where the hooking and jumping shortcuts (not the neighbour pulls alone) must carry it
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        v, k = 300, 4
+        perm = rng.permutation(v)
+        parent = np.array([-1] + [int(rng.integers(max(0, i - 3), i)) for i in range(1, v)])
+        parent[rng.uniform(size=v) < 0.05] = -1                     # cut into a forest
+        edges = [(perm[i], perm[parent[i]]) for i in range(v) if parent[i] >= 0]
+        nbrs = -np.ones((v, k), np.int64)
+        fill = np.zeros(v, int)
+        for a, b in edges:
+            if fill[a] < k and fill[b] < k:
+                nbrs[a, fill[a]], nbrs[b, fill[b]] = b, a
+                fill[a] += 1
+                fill[b] += 1
+        mask = rng.uniform(size=v) < 0.95
+        labels = np.asarray(connected_components(jnp.asarray(nbrs, jnp.int32), jnp.asarray(mask),
+                                                 symmetric=True))
+        rows, cols = np.nonzero(nbrs >= 0)
+        ok = mask[rows] & mask[nbrs[rows, cols]]
+        graph = coo_matrix((np.ones(ok.sum()), (rows[ok], nbrs[rows, cols][ok])), shape=(v, v))
+        _, ref = scipy_components(graph, directed=False)
+        assert _same_partition(labels[mask], ref[mask])
+        assert (labels[~mask] == v).all()
+        for lab in set(labels[mask].tolist()):
+            assert lab == np.flatnonzero(labels == lab).min()
+
+
 def test_a_long_chain_is_one_cluster():
     v = 200
     nbrs = np.stack([np.arange(v) - 1, np.arange(v) + 1], -1)

@@ -26,6 +26,17 @@ def test_descriptor_equals_scikit_image(channels):
     np.testing.assert_allclose(mine, ref, atol=1e-6)
 
 
+def test_few_grey_levels_equal_scikit_image():
+    # four levels per channel: many gradients exactly along the axes or at 45 deg, flat pixels,
+    # and equal magnitudes in several channels (the first channel wins, as skimage's argmax)
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 4, size=(128, 64, 3)) / 3.0
+    img[:, 30:] = img[:, 30:, :1]                     # grey on the right: three-way ties
+    ref = skimage_feature.hog(img, orientations=9, pixels_per_cell=(8, 8),
+                              cells_per_block=(2, 2), block_norm="L2-Hys", channel_axis=-1)
+    np.testing.assert_allclose(np.asarray(_hog(jnp.asarray(img))), ref, atol=1e-6)
+
+
 def test_other_geometry_equals_scikit_image():
     cfg = HOGConfig(window=(48, 32), cell=6, block=3, orientations=12)
     img = np.random.default_rng(1).uniform(size=(48, 32))
