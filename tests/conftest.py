@@ -25,12 +25,7 @@ CACHE = str(Path(__file__).resolve().parent.parent / ".jax_cache")
 # the backend, and in the environment, so the processes the tests start (commands, notebook
 # kernels, Monte-Carlo workers) inherit it. Only for the jaxlib the project pins (an unknown
 # XLA flag aborts the process).
-# The tests' time is mostly compilation, so LLVM's optimisation of the generated code is also
-# skipped (level 0, the default is 2): tests/control/test_potential_field.py and
-# tests/association/test_jpda.py took 129 s instead of 182 s, tests/sims/service/test_episode.py
-# (two 2-episode closed-loop rollouts) 116 s instead of 149 s. Only the tests run this way;
-# the library, its commands and the benchmarks keep XLA's defaults.
-_FAST_COMPILE = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
+_FAST_COMPILE = "--xla_cpu_use_fusion_emitters=false"
 if jax.__version_info__[:2] == (0, 10) and "xla_cpu_use_fusion_emitters" not in os.environ.get(
         "XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
