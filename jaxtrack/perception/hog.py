@@ -40,7 +40,7 @@ from jaxtrack import _checks
 Array = jax.Array
 
 __all__ = ["HOGConfig", "PinholeCamera", "LinearSVM", "hog", "crop", "person_box", "project",
-           "svm_confidence", "load_svm", "num_features"]
+           "svm_confidence", "load_svm", "num_features", "descriptors"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,25 +122,7 @@ def crop(image: Array, box: Array, config: HOGConfig = HOGConfig()) -> Array:
     [rows, cols, C] (bilinear, pixel centres; outside the image the nearest edge pixel)."""
     _checks.check_ndim("image", image, 3, "[H, W, C] image")
     _checks.check_shape("box", box, (4,), "[4] (top, left, bottom, right)")
-    rows, cols = config.window
-    H, W = image.shape[:2]
-    dtype = image.dtype if jnp.issubdtype(image.dtype, jnp.floating) else jnp.float32
-    img = image.astype(dtype)
-    box = jnp.asarray(box, dtype)
-    r = box[0] + (jnp.arange(rows, dtype=dtype) + 0.5) * (box[2] - box[0]) / rows - 0.5
-    c = box[1] + (jnp.arange(cols, dtype=dtype) + 0.5) * (box[3] - box[1]) / cols - 0.5
-    r = jnp.clip(r, 0, H - 1)
-    c = jnp.clip(c, 0, W - 1)
-    r0 = jnp.clip(jnp.floor(r), 0, max(H - 2, 0)).astype(jnp.int32)
-    c0 = jnp.clip(jnp.floor(c), 0, max(W - 2, 0)).astype(jnp.int32)
-    fr = (r - r0)[:, None, None]
-    fc = (c - c0)[None, :, None]
-    r1, c1 = jnp.minimum(r0 + 1, H - 1), jnp.minimum(c0 + 1, W - 1)
-    # the window's own pixels (img[r0][:, c0] would first copy whole image rows)
-    r0, r1, c0, c1 = r0[:, None], r1[:, None], c0[None], c1[None]
-    top = img[r0, c0] * (1 - fc) + img[r0, c1] * fc
-    bot = img[r1, c0] * (1 - fc) + img[r1, c1] * fc
-    return top * (1 - fr) + bot * fr
+    return jnp.moveaxis(_crop_planes(_planes(image), box, config), 0, -1)
 
 
 def hog(window: Array, config: HOGConfig = HOGConfig()) -> Array:
@@ -159,12 +141,63 @@ def hog(window: Array, config: HOGConfig = HOGConfig()) -> Array:
     if img.ndim == 2:
         img = img[..., None]
     _checks.check_ndim("window", img, 3, "[rows, cols] or [rows, cols, C] window")
-    dtype = img.dtype if jnp.issubdtype(img.dtype, jnp.floating) else jnp.float32
-    img = img.astype(dtype)
-    R, C = img.shape[:2]
-    # Colour planes first and one plane at a time: XLA's CPU loops do not vectorise over a
-    # trailing axis of 3 channels or 9 bins.
-    planes = jnp.moveaxis(img, -1, 0)                                  # [Ch, R, C]
+    return _descriptor(_planes(img), config)
+
+
+def descriptors(image: Array, boxes: Array, config: HOGConfig = HOGConfig()) -> Array:
+    """[B, F] descriptors of B boxes (top, left, bottom, right) [B, 4] of one image [H, W, C]:
+    ``hog(crop(image, box))`` for each box, with the image's colour planes split once.
+
+    Example:
+      >>> c = svm_confidence(load_svm(), descriptors(image, person_box(camera, head, foot)))
+    """
+    _checks.check_ndim("image", image, 3, "[H, W, C] image")
+    _checks.check_shape("boxes", boxes, (None, 4), "[B, 4] (top, left, bottom, right)")
+    planes = _planes(image)
+    windows = jax.vmap(lambda b: _crop_planes(planes, b, config))(boxes)     # [B, C, rows, cols]
+    # Materialised by a scatter: XLA otherwise fuses the crop's gathers and interpolation into
+    # every gradient of the descriptor, recomputing each window pixel several times (13.4
+    # against 6.7 ms for 16 QVGA boxes on a CPU). An optimization_barrier does not stop it:
+    # XLA:CPU removes barriers before fusing.
+    n = windows.shape[0]
+    windows = jnp.zeros((n + 1,) + windows.shape[1:], windows.dtype).at[
+        jnp.arange(n)].set(windows)[:n]
+    return jax.vmap(lambda w: _descriptor(w, config))(windows)
+
+
+def _planes(image: Array) -> Array:
+    """[C, H, W] floating colour planes of an [H, W, C] image. Colour planes first, so that
+    every step works on one plane at a time: XLA's CPU loops do not vectorise over a trailing
+    axis of 3 channels."""
+    dtype = image.dtype if jnp.issubdtype(image.dtype, jnp.floating) else jnp.float32
+    return jnp.moveaxis(jnp.asarray(image).astype(dtype), -1, 0)
+
+
+def _crop_planes(planes: Array, box: Array, config: HOGConfig) -> Array:
+    """`crop` of [C, H, W] planes: [C, rows, cols]."""
+    rows, cols = config.window
+    H, W = planes.shape[1:]
+    dtype = planes.dtype
+    box = jnp.asarray(box, dtype)
+    r = box[0] + (jnp.arange(rows, dtype=dtype) + 0.5) * (box[2] - box[0]) / rows - 0.5
+    c = box[1] + (jnp.arange(cols, dtype=dtype) + 0.5) * (box[3] - box[1]) / cols - 0.5
+    r = jnp.clip(r, 0, H - 1)
+    c = jnp.clip(c, 0, W - 1)
+    r0 = jnp.clip(jnp.floor(r), 0, max(H - 2, 0)).astype(jnp.int32)
+    c0 = jnp.clip(jnp.floor(c), 0, max(W - 2, 0)).astype(jnp.int32)
+    fr = (r - r0)[:, None]
+    fc = (c - c0)[None, :]
+    r1, c1 = jnp.minimum(r0 + 1, H - 1), jnp.minimum(c0 + 1, W - 1)
+    # the window's own pixels (planes[:, r0][:, :, c0] would first copy whole image rows)
+    r0, r1, c0, c1 = r0[:, None], r1[:, None], c0[None], c1[None]
+    top = planes[:, r0, c0] * (1 - fc) + planes[:, r0, c1] * fc
+    bot = planes[:, r1, c0] * (1 - fc) + planes[:, r1, c1] * fc
+    return top * (1 - fr) + bot * fr
+
+
+def _descriptor(planes: Array, config: HOGConfig) -> Array:
+    """`hog` of [C, rows, cols] colour planes."""
+    R, C = planes.shape[1:]
     g_row = jnp.pad(planes[:, 2:] - planes[:, :-2], ((0, 0), (1, 1), (0, 0)))
     g_col = jnp.pad(planes[:, :, 2:] - planes[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
     # (hypot, not squares: 8-bit images tie often, and the tie must break as skimage's)

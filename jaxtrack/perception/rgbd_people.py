@@ -222,7 +222,7 @@ def _detect(cfg, state, key, points, mask, colours, viewpoint, image, camera, sv
         boxes = hog.person_box(camera, people.head, foot, cfg.hog).astype(dtype)
         boxes = jnp.where(people.mask[:, None], boxes, 0)
     if image is not None and camera is not None and svm is not None:
-        feats = jax.vmap(lambda b: hog.hog(hog.crop(image, b, cfg.hog), cfg.hog))(boxes)
+        feats = hog.descriptors(image, boxes, cfg.hog)
         confidence = jnp.where(people.mask, hog.svm_confidence(svm, feats.astype(dtype)), 0)
     frame = RGBDPeopleFrame(people, hist, confidence, boxes, grid, fit, fg, clusters)
     return RGBDPeopleState(fit.plane), frame

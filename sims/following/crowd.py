@@ -529,7 +529,7 @@ def training_crops(key: Array, cfg: CrowdConfig, num_frames: int, dtype=jnp.floa
                                   cam.width - 0.3 * h)
         rand = jnp.stack([top, left, top + h, left + 0.5 * h], -1)
         boxes = jnp.concatenate([seen.boxes, rand])
-        feats = jax.vmap(lambda b: hog.hog(hog.crop(colour, b)))(boxes)
+        feats = hog.descriptors(colour, boxes)
         # A random box is a negative unless it covers a person's foot point.
         feet, _ = hog.project(hog.PinholeCamera(camera.focal, camera.principal, eye, rot),
                               jnp.concatenate([crowd.pos, jnp.zeros((cfg.max_people, 1),

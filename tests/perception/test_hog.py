@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxtrack.perception.hog import (HOGConfig, LinearSVM, PinholeCamera, crop, hog,
-                                     num_features, person_box, project, svm_confidence)
+from jaxtrack.perception.hog import (HOGConfig, LinearSVM, PinholeCamera, crop, descriptors,
+                                     hog, num_features, person_box, project, svm_confidence)
 
 skimage_feature = pytest.importorskip("skimage.feature")
 _hog = jax.jit(hog)
@@ -106,6 +106,19 @@ def test_vmap_over_detections():
     np.testing.assert_allclose(batched[1], hog(imgs[1]), atol=1e-6)
 
 
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_descriptors_are_the_hog_of_each_crop(dtype):
+    # boxes inside, across the edges and degenerate (a masked detection's zeros)
+    image = jax.random.uniform(jax.random.key(3), (60, 80, 3), dtype)
+    boxes = jnp.asarray([[5.0, 10.0, 50.0, 32.5], [-8.0, 60.0, 70.0, 99.0], [0, 0, 0, 0]], dtype)
+    got = jax.jit(descriptors)(image, boxes)
+    assert got.shape == (3, num_features()) and got.dtype == dtype
+    for b in range(3):
+        want = jax.jit(hog)(jax.jit(crop)(image, boxes[b]))
+        np.testing.assert_allclose(got[b], want, atol=1e-6 if dtype == jnp.float32 else 1e-12)
+    assert descriptors(image, jnp.zeros((0, 4), dtype)).shape == (0, num_features())
+
+
 def test_bad_input_is_refused():
     with pytest.raises(ValueError, match="image"):
         crop(jnp.zeros((4, 4)), jnp.zeros(4))
@@ -113,3 +126,5 @@ def test_bad_input_is_refused():
         crop(jnp.zeros((4, 4, 3)), jnp.zeros(3))
     with pytest.raises(ValueError, match="window"):
         hog(jnp.zeros((4, 4, 3, 1)))
+    with pytest.raises(ValueError, match="boxes"):
+        descriptors(jnp.zeros((4, 4, 3)), jnp.zeros((2, 3)))
