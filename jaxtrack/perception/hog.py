@@ -156,7 +156,7 @@ def descriptors(image: Array, boxes: Array, config: HOGConfig = HOGConfig()) -> 
     planes = _planes(image)
     windows = jax.vmap(lambda b: _crop_planes(planes, b, config))(boxes)     # [B, C, rows, cols]
     # Materialised by a scatter: XLA otherwise fuses the crop's gathers and interpolation into
-    # every gradient of the descriptor, recomputing each window pixel several times (13.4
+    # every gradient of the descriptor, recomputing each window pixel several times (13.1
     # against 6.7 ms for 16 QVGA boxes on a CPU). An optimization_barrier does not stop it:
     # XLA:CPU removes barriers before fusing.
     n = windows.shape[0]
