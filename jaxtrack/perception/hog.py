@@ -153,6 +153,7 @@ def descriptors(image: Array, boxes: Array, config: HOGConfig = HOGConfig()) -> 
     """
     _checks.check_ndim("image", image, 3, "[H, W, C] image")
     _checks.check_shape("boxes", boxes, (None, 4), "[B, 4] (top, left, bottom, right)")
+    _checks.check_finite("image", image)     # a NaN pixel would spread to every block
     planes = _planes(image)
     windows = jax.vmap(lambda b: _crop_planes(planes, b, config))(boxes)     # [B, C, rows, cols]
     # Materialised by a scatter: XLA otherwise fuses the crop's gathers and interpolation into

@@ -128,3 +128,5 @@ def test_bad_input_is_refused():
         hog(jnp.zeros((4, 4, 3, 1)))
     with pytest.raises(ValueError, match="boxes"):
         descriptors(jnp.zeros((4, 4, 3)), jnp.zeros((2, 3)))
+    with pytest.raises(ValueError, match="image contains NaN"):
+        descriptors(jnp.full((4, 4, 3), jnp.nan), jnp.zeros((2, 4)))
