@@ -12,6 +12,8 @@ box that should contain the whole person, from the head to the ground". Here:
   of 20 deg (hard assignment), 8 x 8 pixel cells (mean magnitude per bin), 2 x 2 cell blocks
   normalised by L2-Hys (:math:`v / \sqrt{\|v\|^2 + \epsilon^2}`, clipped at 0.2,
   renormalised), all blocks at a stride of one cell: 7 x 15 blocks x 36 = 3780 features;
+- `descriptors`: `hog` of the `crop` of each of several boxes of one image, as the detector
+  scores its detections;
 - `LinearSVM`: the detector's linear SVM, :math:`s = w^T f + b`, and its confidence
   :math:`\sigma(s)` in (0, 1), which the tracker weighs (seed 001's :math:`c_{HOG}`).
 
