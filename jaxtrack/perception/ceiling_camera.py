@@ -347,9 +347,7 @@ def visible_among(camera: CeilingCamera, query_xy: Array, query_heights: Array,
     _checks.check_shape("may_occlude", may_occlude, (Q, P), "[Q, P] bools")
     if _dtype_of(may_occlude) != np.bool_:
         raise TypeError(f"may_occlude must hold bools; got dtype {_dtype_of(may_occlude)}")
-    if _checks.is_concrete(query_xy) and not np.all(np.isfinite(np.asarray(query_xy,
-                                                                        np.float64))):
-        raise ValueError("query_xy contains NaN or inf (under jit such a query is not visible)")
+    _checks.check_finite("query_xy", query_xy)     # (under jit such a query is not visible)
     _, dtype = _check_people(camera, query_xy, query_heights, query_radii, np.ones(Q, bool))
     # only the people some query allows are checked (the others may hold anything)
     _check_people(camera, people_xy, heights, radii, jnp.any(jnp.asarray(may_occlude), 0))

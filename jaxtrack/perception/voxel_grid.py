@@ -241,8 +241,7 @@ def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
     renumber = jnp.full(v + 1, -1, jnp.int32).at[rows].set(
         jnp.arange(capacity, dtype=jnp.int32)).at[v].set(-1)
     taken = rows < v
-    # each kept voxel's new row, `capacity` for none
-    dest = jnp.where(renumber[:v] >= 0, renumber[:v], capacity)
+    dest = jnp.where(renumber[:v] >= 0, renumber[:v], capacity)   # new rows; capacity: none
 
     def rows_of(x, fill):
         # A scatter, not a gather of the kept rows: XLA fuses a gather into its consumers,
