@@ -17,7 +17,9 @@ For each person (a disc of radius ``person_radius`` at ``people_xy``), in the ro
    feature is the person's colour plus Gaussian noise ``colour_std``, clipped to [0, 1].
 5. **False positives**: a Poisson number with mean ``false_rate`` per frame, truncated at the
    capacity ``max_false``, uniform over the area of the field-of-view sector between the range
-   limits, with colours uniform in [0, 1]^3.
+   limits, with colours uniform in [0, 1]^3. With ``walls``, those behind a wall are dropped:
+   a detector finds its false positives in what the camera sees (its clutter is a constant
+   density over the visible part of the sector), not through walls.
 
 The output has fixed capacity M = P + ``max_false``; its rows are randomly permuted so that a
 row's index says nothing about who it is (``person_id`` gives the truth, for evaluation only).
@@ -174,7 +176,8 @@ def detect(key: Array, cfg: RGBDConfig, robot_pose: Array, people_xy: Array,
       people_mask: [P] bool, which rows are real people.
       people_colour: [P, 3] each person's colour vector in [0, 1].
       walls: optional [S, 2, 2] wall segments (world frame) that hide the people behind them
-        (shelves): a person whose centre is out of sight of the camera is not detected.
+        (shelves): a person whose centre is out of sight of the camera is not detected, and
+        no false positive falls behind a wall.
 
     Returns:
       `RGBDDetections` with M = P + cfg.max_false rows, in random order (positions in the
@@ -208,6 +211,10 @@ def detect(key: Array, cfg: RGBDConfig, robot_pose: Array, people_xy: Array,
                                                                       - cfg.min_range ** 2)
     r = jnp.sqrt(r2)
     false_xy = jnp.stack([r * jnp.cos(bearing), r * jnp.sin(bearing)], -1)
+    if walls is not None and walls.shape[0] and f:
+        false_mask = false_mask & ~_behind_walls(
+            robot_pose[:2], geometry.from_frame(robot_pose, false_xy),
+            jnp.asarray(walls, dtype))
     false_col = jax.random.uniform(k_fc, (f, 3), dtype)
 
     all_xy = jnp.concatenate([xy, false_xy])

@@ -6,6 +6,7 @@ sampling tolerances (4 standard errors); odometry against an exact noise-free ro
 """
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -13,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxtrack import geometry
 from sims.following import rgbd
 
 N = 4000
@@ -138,6 +140,24 @@ def test_false_positives_are_poisson_uniform_in_the_field_of_view():
     capped = detect_keys(keys, dataclasses.replace(CFG, false_rate=9.0), ROBOT, people,
                          jnp.array([False, False]), colour)
     assert np.asarray(capped.mask).sum(1).max() == 6
+
+
+def test_no_false_positive_falls_behind_a_wall():
+    """A wall across the view 2 m ahead: the false positives are those of the open view (same
+    keys) in front of it, at the same places."""
+    cfg = dataclasses.replace(CFG, false_rate=1.5)
+    people, mask, colour = jnp.zeros((2, 2)), jnp.array([False, False]), jnp.zeros((2, 3))
+    wall = geometry.from_frame(ROBOT, jnp.array([[2.0, -3.0], [2.0, 3.0]]))[None]
+    keys = jax.random.split(jax.random.key(5), 500)
+    walled = jax.jit(jax.vmap(functools.partial(rgbd.detect, walls=wall),
+                              in_axes=(0, None, None, None, None, None)))
+    a = detect_keys(keys, cfg, ROBOT, people, mask, colour)
+    b = walled(keys, cfg, ROBOT, people, mask, colour)
+    a_mask, b_mask, a_xy = np.asarray(a.mask), np.asarray(b.mask), np.asarray(a.xy)
+    in_front = a_mask & (a_xy[..., 0] < 2.0)
+    assert in_front.sum() > 100 and (a_mask & ~in_front).sum() > 400
+    np.testing.assert_array_equal(b_mask, in_front)
+    np.testing.assert_allclose(np.asarray(b.xy)[b_mask], a_xy[in_front], rtol=1e-6)
 
 
 def test_detect_jits_and_vmaps_over_robot_poses_and_noise_levels():
