@@ -65,8 +65,8 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
                            p_detect: Array | float, clutter_density: Array | float,
                            gate_prob: float = 0.99, meas_mask: Array | None = None,
                            track_mask: Array | None = None, hard: bool = False,
-                           method: str = "exact",
-                           max_cluster_tracks: int = 8) -> SensorScanResult:
+                           method: str = "exact", max_cluster_tracks: int = 8,
+                           pair_mask: Array | None = None) -> SensorScanResult:
     r"""JPDA (``hard=False``) or NN-JPDA (``hard=True``) update with the detections of S sensors.
 
     For each sensor in turn (module docstring): :math:`d^2`, log-likelihoods with that sensor's
@@ -89,6 +89,8 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
       hard: NN-JPDA instead of JPDA.
       method: ``"exact"`` or ``"lbp"`` (see `jpda_marginals`).
       max_cluster_tracks: exact-evaluation cap per cluster (see `jpda_marginals`).
+      pair_mask: optional [K, M] bools; a False pair is outside the gate in every pass (e.g.
+        `jaxtrack.tracking.tracker`'s ``tentative_outside_confirmed``).
 
     Returns:
       A `SensorScanResult`.
@@ -111,6 +113,8 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
             _checks.check_shape(name, value, (S,), "a scalar or one value per sensor")
     if track_mask is not None:
         _checks.check_shape("track_mask", track_mask, (K,), "one flag per track")
+    if pair_mask is not None:
+        _checks.check_shape("pair_mask", pair_mask, (K, M), "one flag per track and detection")
     _checks.check_probability("gate_prob", gate_prob)
     if _checks.is_concrete(gate_prob) and float(gate_prob) <= 0:
         raise ValueError(f"gate_prob must be in (0, 1]; got {gate_prob!r}")
@@ -122,12 +126,12 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
         if _checks.is_concrete(value) and not np.all(ok(np.asarray(value, np.float64))):
             raise ValueError(f"{name} has invalid values: {value!r}")
     return _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob,
-                       meas_mask, track_mask, hard, method, max_cluster_tracks)
+                       meas_mask, track_mask, hard, method, max_cluster_tracks, pair_mask)
 
 
 @functools.partial(jax.jit, static_argnames=("hard", "method", "max_cluster_tracks"))
 def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, meas_mask,
-                track_mask, hard, method, max_cluster_tracks):
+                track_mask, hard, method, max_cluster_tracks, pair_mask=None):
     K = states.mean.shape[0]
     M, m = zs.shape
     S = R.shape[0]
@@ -145,6 +149,8 @@ def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, 
         inn = gating.innovations(state.mean, state.cov, zs, H, R, sensor=sensor,
                                  track_mask=track_mask, meas_mask=mask_s)
         gated = inn.valid & (inn.d2 <= threshold)
+        if pair_mask is not None:
+            gated = gated & jnp.asarray(pair_mask, bool)
         log_g = jnp.where(gated, inn.log_likelihood - jnp.log(p_gate), -jnp.inf)
         beta, info = jpda.jpda_marginals(log_g, pd_s[s] * p_gate, lam_s[s], track_mask, mask_s,
                                          method, log=True, max_cluster_tracks=max_cluster_tracks,

@@ -106,6 +106,11 @@ class TrackerConfig:
       births_in_gates: an unassociated detection inside a live track's gate may start a track
         (off for people: the track would be a duplicate; on for legs, whose neighbours'
         gates reach across the 0.1-0.4 m between a person's two legs).
+      tentative_outside_confirmed: a detection inside a confirmed track's gate updates no
+        tentative track (it is the confirmed track's, or clutter beside it). Off, a tentative
+        track born of clutter beside a person takes that person's noisier detections (a 0.3 m
+        RGB-D detection lands in its wide new gate) and is confirmed by them: a false track
+        that then coasts away. Tracks start outside live gates anyway (``births_in_gates``).
       motion_term: the Mahalanobis distance of the GNN cost and gate. "position": of the
         detected position. "position_velocity" (seed 001, section IV-B: "the Mahalanobis
         distance of the detection position and estimated velocity from the predicted state"):
@@ -137,6 +142,7 @@ class TrackerConfig:
     num_features: int = 0
     merge_distance: float = 0.0
     births_in_gates: bool = False
+    tentative_outside_confirmed: bool = False
     motion_term: str = "position"
     distance: str = "squared"
     sensor_update: str = "joint"
@@ -452,7 +458,7 @@ class Hypotheses(NamedTuple):
       innovations: `jaxtrack.association.Innovations`, ``d2`` / ``log_likelihood`` / ``valid``
         [K, M] with the noise of each detection's sensor.
       gated: [K, M] bools, :math:`d^2_{kj} \le \chi^2_2{}^{-1}(P_G)` for live tracks and present
-        detections.
+        detections (and ``allowed`` pairs).
       appearance: [K, M] colour confidence of each track's classifier (0 without features).
       confidence: [M] detector confidence.
       features: [M, F] appearance features, in the tracks' dtype.
@@ -462,6 +468,9 @@ class Hypotheses(NamedTuple):
       motion_d2: [K, M] the squared Mahalanobis distance of the GNN cost: that of
         ``innovations`` for ``motion_term="position"``, of position and velocity for
         "position_velocity".
+      allowed: [K, M] bools, the pairs the association may use at all (``gated`` is within
+        them): all but a tentative track's with a detection in a confirmed track's gate
+        (``tentative_outside_confirmed``); None: all.
     """
 
     predicted: Gaussian
@@ -477,6 +486,7 @@ class Hypotheses(NamedTuple):
     features: Array
     modes: imm.IMMState | None = None
     motion_d2: Array | None = None
+    allowed: Array | None = None
 
 
 class Association(NamedTuple):
@@ -674,6 +684,11 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
     else:
         d2 = inn.d2
         gated = association.gate(d2, 2, params.gate_prob, live, mask)
+    allowed = None
+    if cfg.tentative_outside_confirmed:
+        claimed = jnp.any(gated & (state.status == CONFIRMED)[:, None], 0)      # [M]
+        allowed = ~((state.status == TENTATIVE)[:, None] & claimed[None, :])   # [K, M]
+        gated = gated & allowed
     features = detections.features.astype(dtype)
     if cfg.num_features:
         has = _has_features(features)
@@ -683,7 +698,7 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
         conf_app = jnp.zeros((K, M), dtype)
     modes = _predict_modes(state, params) if cfg.motion == "imm" else None
     return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
-                      detections.confidence, features, modes, d2)
+                      detections.confidence, features, modes, d2, allowed)
 
 
 def _position_velocity_d2(previous, predicted, zs, R, dt):
@@ -845,7 +860,8 @@ def _sequential_update(h, params, hard):
         h.predicted, h.zs, _position(h.zs.dtype), h.R, h.sensor,
         p_detect=jax.nn.sigmoid(params.logit_p_detect),
         clutter_density=jnp.exp(params.log_clutter_density), gate_prob=params.gate_prob,
-        meas_mask=h.mask, track_mask=h.live, hard=hard, method=params.config.jpda_method)
+        meas_mask=h.mask, track_mask=h.live, hard=hard, method=params.config.jpda_method,
+        pair_mask=h.allowed)
     beta = out.beta                                            # [S, K, M + 1]
     live = h.live
     if hard:

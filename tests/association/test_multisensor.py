@@ -36,12 +36,15 @@ def random_scan(seed, K=3, M=7):
     return Gaussian(means, covs), zs, sensor, mask
 
 
-def step_by_step(states, zs, sensor, mask, track_mask, p_detect, clutter, gate_prob, hard):
+def step_by_step(states, zs, sensor, mask, track_mask, p_detect, clutter, gate_prob, hard,
+                 pair_mask=None):
     for s in range(3):
         mask_s = mask & (sensor == s)
         inn = association.innovations(states.mean, states.cov, zs, H, SENSOR_R, sensor=sensor,
                                       meas_mask=mask_s, track_mask=track_mask)
         gated = np.asarray(inn.d2) <= chi2.ppf(gate_prob, 2)
+        if pair_mask is not None:
+            gated &= pair_mask
         g = np.where(gated, np.exp(np.asarray(inn.log_likelihood)) / gate_prob, 0.0)
         beta = association.jpda_marginals(g, p_detect[s] * gate_prob, clutter[s],
                                           meas_mask=mask_s, track_mask=track_mask)
@@ -74,6 +77,37 @@ def test_sequential_update_equals_the_pipeline_sensor_by_sensor(hard):
         for s in range(3):
             off = ~(mask & (sensor == s))
             assert np.all(beta[s][:, :-1][:, off] == 0)
+
+
+@pytest.mark.parametrize("hard", [False, True])
+def test_a_pair_mask_takes_pairs_out_of_every_sensors_gate(hard):
+    p_detect, clutter = np.array([0.9, 0.7, 0.8]), np.array([0.05, 0.2, 0.1])
+    track_mask = np.ones(3, bool)
+    changed = 0
+    for seed in range(3):
+        states, zs, sensor, mask = random_scan(seed)
+        pair_mask = np.random.default_rng(10 + seed).uniform(size=(3, 7)) < 0.6
+        out = association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor,
+                                                 p_detect=p_detect, clutter_density=clutter,
+                                                 gate_prob=0.99, meas_mask=mask,
+                                                 track_mask=track_mask, hard=hard,
+                                                 pair_mask=pair_mask)
+        ref = step_by_step(states, zs, sensor, mask, track_mask, p_detect, clutter, 0.99, hard,
+                           pair_mask)
+        np.testing.assert_allclose(np.asarray(out.posterior.mean), np.asarray(ref.mean),
+                                   rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(out.posterior.cov), np.asarray(ref.cov),
+                                   rtol=1e-10, atol=1e-12)
+        assert np.all(np.asarray(out.beta)[:, :, :-1][:, ~pair_mask] == 0)
+        free = association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor,
+                                                  p_detect=p_detect, clutter_density=clutter,
+                                                  gate_prob=0.99, meas_mask=mask,
+                                                  track_mask=track_mask, hard=hard)
+        changed += not np.allclose(np.asarray(free.posterior.mean), np.asarray(ref.mean))
+    assert changed        # the masks took gated pairs out
+    with pytest.raises(ValueError, match="pair_mask must have shape"):
+        association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor, p_detect=0.9,
+                                           clutter_density=0.1, pair_mask=np.ones((3, 6), bool))
 
 
 def test_masked_tracks_are_unchanged_and_bad_inputs_rejected():

@@ -823,3 +823,51 @@ def test_sequential_sensor_update_runs_a_scan_sequence_and_needs_jpda_with_cv():
             tracking.TrackerConfig(sensor_update="sequential", **bad)
     with pytest.raises(ValueError, match="sensor_update"):
         tracking.TrackerConfig(sensor_update="stacked")
+
+
+@pytest.mark.parametrize("assoc, update", [("gnn", "joint"), ("jpda", "joint"),
+                                           ("nn_jpda", "joint"), ("jpda", "sequential"),
+                                           ("nn_jpda", "sequential")])
+def test_a_tentative_track_takes_no_detection_inside_a_confirmed_tracks_gate(assoc, update):
+    """A confirmed track at the origin (seen by the 0.1 m sensor) and a tentative one 1.6 m
+    away. A 0.3 m detection between them lies in both gates: without the option the tentative
+    track takes it, with it the tentative track misses (its posterior is its prediction) and
+    the detection starts no track. One outside the confirmed gate still updates it."""
+    mean = np.array([[0.0, 0.0, 0.0, 0.0], [1.6, 0.0, 0.0, 0.0], [0, 0, 0, 0], [0, 0, 0, 0]])
+    cov = np.stack([np.diag([0.01, 0.01, 0.1, 0.1]), np.diag([0.09, 0.09, 0.25, 0.25])]
+                   + [np.eye(4)] * 2)
+    between, beyond = [1.2, 0.0], [2.0, 0.05]
+    out = {}
+    for option in (False, True):
+        cfg = tracking.TrackerConfig(capacity=4, association=assoc, sensor_update=update,
+                                     tentative_outside_confirmed=option)
+        params = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.1, 0.3),
+                                               clutter_density=0.05, dtype=jnp.float64)
+        state = tracking.init(cfg, jnp.float64)._replace(
+            mean=jnp.asarray(mean), cov=jnp.asarray(cov),
+            status=jnp.asarray([2, 1, 0, 0], jnp.int32), id=jnp.asarray([0, 1, -1, -1],
+                                                                         jnp.int32),
+            hits=jnp.asarray([5, 1, 0, 0], jnp.int32), history=jnp.asarray([31, 1, 0, 0],
+                                                                             jnp.int32))
+        pred = tracker.predict(state, params)
+        for name, z in (("between", between), ("beyond", beyond)):
+            det = tracking.Detections(jnp.asarray([[0.02, 0.0], z]), jnp.ones(2, bool),
+                                      jnp.asarray([0, 1], jnp.int32), jnp.ones(2),
+                                      jnp.zeros((2, 0)))
+            hyp = tracker.hypothesise(state, pred, det, params)
+            a = tracker.associate(hyp, params)
+            born = tracker.births(tracker.manage(state, hyp, a, params), hyp, a, params).born
+            out[option, name] = (np.asarray(hyp.gated), a, np.asarray(born))
+    off, on = out[False, "between"], out[True, "between"]
+    np.testing.assert_array_equal(off[0][:2], [[True, True], [False, True]])
+    np.testing.assert_array_equal(on[0][:2], [[True, True], [False, False]])
+    assert bool(off[1].hit[1]) and not bool(on[1].hit[1])
+    np.testing.assert_allclose(np.asarray(on[1].posterior.mean[1]), np.asarray(pred.mean[1]))
+    np.testing.assert_allclose(np.asarray(on[1].posterior.cov[1]), np.asarray(pred.cov[1]))
+    assert bool(on[1].hit[0]) and not on[2].any()
+    # outside the confirmed track's gate: the option changes nothing
+    off_b, on_b = out[False, "beyond"], out[True, "beyond"]
+    assert not off_b[0][0, 1] and bool(on_b[1].hit[1])
+    np.testing.assert_array_equal(off_b[0], on_b[0])
+    np.testing.assert_allclose(np.asarray(on_b[1].posterior.mean),
+                               np.asarray(off_b[1].posterior.mean))
