@@ -48,6 +48,32 @@ if not hasattr(np, "asfarray"):
     np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)
 
 
+# The test modules that take longest (seconds summed over their tests, 2026-12-04), run first:
+# `--dist loadscope` hands each worker the next module when it finishes one, so the longest
+# first (with ``--no-loadscope-reorder``: xdist would order them by their number of tests)
+# leaves the short ones to even out the workers' ends.
+_LONGEST_FIRST = (
+    "tests/test_notebooks.py", "tests/sims/test_reproducibility.py",
+    "tests/sims/humanoid/test_episode.py", "tests/tracking/test_tracker.py",
+    "tests/sims/service/test_episode.py", "tests/sims/following/test_episode.py",
+    "tests/tracking/test_user.py", "tests/io/test_replay.py", "tests/association/test_jpda.py",
+    "tests/sims/humanoid/test_floor_objects.py", "tests/control/test_potential_field.py",
+    "tests/test_fuzz.py", "tests/filters/test_particle.py", "tests/tracking/test_tracker_imm.py",
+    "tests/perception/test_voxel_grid.py", "tests/sims/humanoid/test_gradients.py",
+    "tests/tracking/test_leg_tracker.py", "tests/perception/test_rgbd_people.py",
+    "tests/filters/test_imm.py", "tests/sims/test_demo.py", "tests/io/test_rgbd_replay.py",
+    "tests/sims/following/test_crowd.py", "tests/sims/humanoid/test_routes.py",
+    "tests/test_package.py", "tests/sims/following/test_pedestrians.py",
+    "tests/sims/humanoid/test_walkers.py", "tests/io/test_gt_topic.py",
+    "tests/sims/humanoid/test_scene.py", "tests/sims/service/test_report.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {path: i for i, path in enumerate(_LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+
+
 @pytest.fixture(scope="session")
 def following_recording():
     """A 3 s simulated person-following recording (4 people) and its bag records:

@@ -14,10 +14,16 @@ def sc():
     return scene.build(32, 24)
 
 
-def test_one_episode_runs_under_jit_and_vmap(sc):
+@pytest.fixture(scope="module")
+def small_run(sc):
+    """A vmapped episode of 6 frames, 16 particles: one compile for the tests that use it."""
     cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=16), num_frames=6,
                                 max_points=32)
-    run = jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
+    return jax.jit(jax.vmap(episode.make_episode(cfg), (0, None)))
+
+
+def test_one_episode_runs_under_jit_and_vmap(small_run):
+    run = small_run
     params = episode.make_params([0.3, 0.2, 0.5])
     m = run(jax.random.split(jax.random.PRNGKey(0), 3), params)
     assert m["truth"].shape == (3, 6, 3) and m["estimate"].shape == (3, 6, 3)
@@ -100,22 +106,21 @@ def test_turn_prediction_removes_the_pca_heading_lag_on_a_turn(sc, lagging):
     assert np.mean(predicted) < 0.7 * np.mean(lagging)
 
 
-def test_traced_temperature_is_the_one_source_and_matters(sc):
+def test_traced_temperature_is_the_one_source_and_matters(small_run):
     """params.log_temperature is the likelihood's temperature, a traced value: one compiled
-    episode runs the seed's weight (None), T = 3 and T = 30, and the estimates differ."""
-    cfg = episode.EpisodeConfig(sc, humanoid.DepthPFConfig(num_particles=16), num_frames=5,
-                                max_points=32)
-    key = jax.random.PRNGKey(3)
+    episode runs T = 3 and T = 30 (and, with another pytree, the seed's weight, None), and the
+    estimates differ."""
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
     target = [0.4, 0.1, 0.3]
     params = episode.make_params(target, temperature=3.0)
     assert params.log_temperature.dtype == jnp.float32
     np.testing.assert_allclose(np.log(3.0), params.log_temperature, rtol=1e-6)
     assert params.tracker == humanoid.DepthTrackerParams(params.log_position_noise,
                                                          params.log_temperature)
-    traced = jax.jit(episode.make_episode(cfg))
-    t3 = traced(key, params)["estimate"]
-    t30 = traced(key, params._replace(log_temperature=jnp.log(jnp.float32(30.0))))["estimate"]
-    seed = jax.jit(episode.make_episode(cfg))(key, episode.make_params(target))["estimate"]
+    t3 = small_run(keys, params)["estimate"]
+    t30 = small_run(keys, params._replace(log_temperature=jnp.log(jnp.float32(30.0))))[
+        "estimate"]
+    seed = small_run(keys, episode.make_params(target))["estimate"]
     assert np.max(np.abs(t30 - t3)) > 1e-3 and np.max(np.abs(seed - t3)) > 1e-3
     # The tasks' default is the seed's weight.
     assert episode.seed_task_params()[0].log_temperature is None
