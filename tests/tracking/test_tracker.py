@@ -858,6 +858,13 @@ def test_a_tentative_track_takes_no_detection_inside_a_confirmed_tracks_gate(ass
             a = tracker.associate(hyp, params)
             born = tracker.births(tracker.manage(state, hyp, a, params), hyp, a, params).born
             out[option, name] = (np.asarray(hyp.gated), a, np.asarray(born))
+        # an empty scan: no pair, no hit, every track as predicted
+        empty = tracking.Detections(jnp.zeros((0, 2)), jnp.zeros(0, bool),
+                                    jnp.zeros(0, jnp.int32), jnp.ones(0), jnp.zeros((0, 0)))
+        hyp = tracker.hypothesise(state, pred, empty, params)
+        a = tracker.associate(hyp, params)
+        assert hyp.gated.shape == (4, 0) and not np.asarray(a.hit).any()
+        np.testing.assert_allclose(np.asarray(a.posterior.mean), np.asarray(pred.mean))
     off, on = out[False, "between"], out[True, "between"]
     np.testing.assert_array_equal(off[0][:2], [[True, True], [False, True]])
     np.testing.assert_array_equal(on[0][:2], [[True, True], [False, False]])
