@@ -202,12 +202,20 @@ class Path(NamedTuple):
 
 
 def distance_field(cost: Array, goal_cell: Array, *, connectivity: int = 8, lethal=math.inf,
-                   cell=1.0, method: str = "edges") -> Array:
+                   cell=1.0, method: str = "edges", start_cell: Array | None = None) -> Array:
     r"""The cost-to-go [H, W] to ``goal_cell`` over the costmap ``cost`` (module docstring).
 
     :math:`D_g = 0`, :math:`D_a = \min_{b \sim a} w(a, b) + D_b`,
     :math:`w(a, b) = \ell_{ab} h (1 + (\mathrm{cost}_a + \mathrm{cost}_b) / 2)`; equal to
     Dijkstra's distances on the same graph (tested against ``scipy.sparse.csgraph.dijkstra``).
+
+    With ``start_cell`` (``method="edges"``), the rounds stop as soon as the start's value is
+    exact, which a robot near its goal knows after a few rounds. Every edge weighs at least
+    :math:`h` (costs are >= 0), so a path of cost :math:`D` has at most :math:`D / h` edges,
+    and :math:`n` rounds make exact every cell whose shortest path has at most :math:`n`
+    edges. Once :math:`D^{(n)}_s \le n h`, the start and every cell on its shortest paths
+    (all of cost-to-go :math:`\le D_s`) are exact; the other cells hold upper bounds (or
+    ``inf``), which `extract_path` from the start never prefers to an exact successor.
 
     Args:
       cost: [H, W] non-negative costs; ``inf`` or ``>= lethal`` is impassable. Under ``jit``,
@@ -218,10 +226,13 @@ def distance_field(cost: Array, goal_cell: Array, *, connectivity: int = 8, leth
         ``inf``: only ``inf`` cells). cell: cell size :math:`h` (m), > 0.
       method: ``"edges"`` (plain Bellman-Ford) or ``"lines"`` (exact line relaxations); the
         same result, ``"lines"`` in fewer but costlier rounds (static; module docstring).
+      start_cell: optional [2] integer ``(row, col)`` the path will start from (clamped into
+        the grid under ``jit``): stop once its value is exact (above). Not with ``"lines"``.
 
     Returns:
       [H, W] float (``cost``'s float dtype) distances; ``inf`` where the goal is unreachable
-      (impassable cells included).
+      (impassable cells included). With ``start_cell``: exact at the start and at every cell
+      whose distance is at most the start's, upper bounds elsewhere.
 
     Example:
       >>> cost = jnp.zeros((8, 8)).at[2:6, 4].set(jnp.inf)
@@ -231,7 +242,13 @@ def distance_field(cost: Array, goal_cell: Array, *, connectivity: int = 8, leth
     cost = _check_cost("cost", cost)
     _check_cell_index("goal_cell", goal_cell, cost.shape)
     _check_options(connectivity, lethal, cell, method)
-    return _field(cost, _as_cell(goal_cell), connectivity, lethal, cell, method)[0]
+    if start_cell is None:
+        return _field(cost, _as_cell(goal_cell), connectivity, lethal, cell, method)[0]
+    if method != "edges":
+        raise ValueError("start_cell stops the edge rounds early; it needs method='edges'")
+    _check_cell_index("start_cell", start_cell, cost.shape)
+    return _field(cost, _as_cell(goal_cell), connectivity, lethal, cell, method,
+                  _as_cell(start_cell))[0]
 
 
 def refine(dist: Array, cost: Array, goal_cell: Array, sweeps: int = 2, *,
@@ -538,8 +555,9 @@ def clear_arc(u: Array, pose: Array, blocked: Array, grid: Grid, dt, steps: int)
 
 
 @functools.partial(jax.jit, static_argnames=("connectivity", "method"))
-def _field(cost, goal, connectivity, lethal, cell, method):
-    """(distances [H, W], rounds) by Bellman-Ford (module docstring)."""
+def _field(cost, goal, connectivity, lethal, cell, method, start_cell=None):
+    """(distances [H, W], rounds) by Bellman-Ford (module docstring); with ``start_cell``, until
+    the start's value is exact (`distance_field`)."""
     H, W = cost.shape
     dtype = cost.dtype
     passable = _passable(cost, lethal)
@@ -570,9 +588,20 @@ def _field(cost, goal, connectivity, lethal, cell, method):
     tol = 16 * jnp.finfo(dtype).eps
     every = _CHECK_EVERY if method == "edges" else 1
 
+    if start_cell is not None:
+        s = jnp.clip(start_cell.astype(jnp.int32), 0, jnp.array([H - 1, W - 1]))
+        h = jnp.asarray(cell, dtype)
+        eps = jnp.finfo(dtype).eps
+
     def cond(state):
-        _, changed, rounds = state
-        return changed & (rounds < H * W)
+        d, changed, rounds = state
+        go = changed & (rounds < H * W)
+        if start_cell is not None:
+            # n rounds are exact on paths of at most n edges, each weighing at least h; the
+            # margin covers the rounding of D_s (a sum of at most n weights)
+            n = rounds.astype(dtype)
+            go = go & ~(d[s[0], s[1]] <= n * h * (1 - 4 * eps * n))
+        return go
 
     def body(state):
         d, _, rounds = state

@@ -115,7 +115,9 @@ class ServiceConfig:
         between (`jaxtrack.control.grid_planner.refine`, from the last frame's field). Rounds
         lower stale values at once but raise them by about one cell's cost per round, so a
         field refined after people appeared across the way would lead the robot into them
-        until the next full solve.
+        until the next full solve. solve_to_robot: a full solve stops once the robot's cell
+        is exact (``distance_field``'s ``start_cell``), not when the whole flat is; False
+        solves the whole flat (the same path, more rounds).
       settle: seconds the robot stands still at the start while its tracks confirm.
       still_at_end: seconds at the end of the episode in which nobody starts a step, so that
         a final pose is judged once the person has stood still that long (a step in the last
@@ -185,6 +187,7 @@ class ServiceConfig:
     cell: float = 0.1
     sweeps: int = 10
     replan_every: int = 5
+    solve_to_robot: bool = True
     settle: float = 1.0
     still_at_end: float = 0.0
     heading_slow: float = 1.0
@@ -681,12 +684,14 @@ def make_rollout(config: ServiceConfig):
         # a full solve on the first frame of each replanning block, refined rounds on the
         # others; ``full`` is the same in every episode (it comes from the frame index, not
         # the episode), so under vmap this stays a branch and only one side runs
+        start = jnp.clip(grid_planner.cell_of(pg, pose[:2]), 0, jnp.asarray(g.shape) - 1)
         dist = jax.lax.cond(
             full,
-            lambda: grid_planner.distance_field(plan_cost, goal_cell, cell=config.cell),
+            lambda: grid_planner.distance_field(
+                plan_cost, goal_cell, cell=config.cell,
+                start_cell=start if config.solve_to_robot else None),
             lambda: grid_planner.refine(s.dist, plan_cost, goal_cell, config.sweeps,
                                         cell=config.cell))
-        start = jnp.clip(grid_planner.cell_of(pg, pose[:2]), 0, jnp.asarray(g.shape) - 1)
         path = grid_planner.extract_path(dist, start, 48, cost=plan_cost, cell=config.cell)
         aim = grid_planner.lookahead_point(pg, path.cells, path.valid, pose[:2],
                                            params.lookahead)

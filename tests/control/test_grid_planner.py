@@ -158,6 +158,43 @@ def test_open_grid_is_metric_and_lines_converge_in_few_rounds():
     assert int(rounds) <= 4
 
 
+@pytest.mark.parametrize("dtype,rtol", [(np.float32, 1e-5), (np.float64, 1e-12)])
+def test_start_cell_stops_once_the_start_and_its_paths_are_exact(dtype, rtol):
+    """With ``start_cell`` the field equals Dijkstra's at the start and at every cell no
+    farther from the goal, bounds it from above elsewhere, gives a shortest path from the
+    start, and takes fewer rounds for a start nearer the goal."""
+    for seed in range(3):
+        cost, goal = random_costmap(seed, dtype)
+        ref = reference_field(cost, goal, 8)
+        reach = np.argwhere(np.isfinite(ref))
+        rng = np.random.default_rng(seed)
+        for start in reach[rng.choice(len(reach), 3, replace=False)]:
+            d = np.asarray(field_jit(cost, goal, lethal=LETHAL, cell=CELL, start_cell=start))
+            assert d.dtype == dtype
+            near = ref <= ref[tuple(start)]
+            np.testing.assert_allclose(d[near], ref[near], rtol=rtol)
+            fin = np.isfinite(ref)
+            assert np.all(d[fin] >= ref[fin] * (1 - rtol))
+            assert np.all(np.isinf(d[~fin]))
+            check_path(path_of(d, start, cost=cost), cost, d, start, 8)
+    cost, goal = random_costmap(0, dtype)
+    ref = reference_field(cost, goal, 8)
+    _, full = gp._field(jnp.asarray(cost), jnp.asarray(goal), 8, LETHAL, CELL, "edges")
+    finite = np.argwhere(np.isfinite(ref) & (ref > 0))
+    near = finite[np.argmin(ref[tuple(finite.T)])]
+    _, early = gp._field(jnp.asarray(cost), jnp.asarray(goal), 8, LETHAL, CELL, "edges",
+                         jnp.asarray(near))
+    assert int(early) < int(full)
+
+
+def test_start_cell_needs_edges_and_a_cell():
+    cost, goal = random_costmap(0, np.float64)
+    with pytest.raises(ValueError, match="method='edges'"):
+        gp.distance_field(cost, goal, method="lines", start_cell=goal)
+    with pytest.raises(ValueError, match="start_cell"):
+        gp.distance_field(cost, goal, start_cell=np.array([0, 0, 0]))
+
+
 def test_impassable_goal_reaches_nothing():
     cost, goal = random_costmap(3, np.float64)
     cost[goal[0], goal[1]] = np.inf
