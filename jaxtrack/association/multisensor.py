@@ -10,10 +10,7 @@ callback at a time) is to associate and update **sensor by sensor** within the s
 sensor s = 0, ..., S - 1, compute the gate, the JPDA marginals over that sensor's detections
 (each sensor sees each track at most once) with the current state, and update; the next sensor
 starts from that posterior. The loop is a `lax.scan` over the S sensors with the detection mask
-``meas_mask & (sensor == s)``, so shapes stay fixed and the whole scan jits and vmaps. When the
-caller's detections come in fixed per-sensor blocks (``sensor_blocks``, static), the S passes
-are unrolled instead and each reads only its own block: the same result, with each pass's
-gating and marginals over its block rather than over all M detections.
+``meas_mask & (sensor == s)``, so shapes stay fixed and the whole scan jits and vmaps.
 
 Within one sensor, `pda_update` handles any noise; across sensors the update order matters only
 through the (approximate) per-sensor association, not through the Kalman algebra.
@@ -69,8 +66,7 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
                            gate_prob: float = 0.99, meas_mask: Array | None = None,
                            track_mask: Array | None = None, hard: bool = False,
                            method: str = "exact", max_cluster_tracks: int = 8,
-                           pair_mask: Array | None = None,
-                           sensor_blocks: tuple[int, ...] | None = None) -> SensorScanResult:
+                           pair_mask: Array | None = None) -> SensorScanResult:
     r"""JPDA (``hard=False``) or NN-JPDA (``hard=True``) update with the detections of S sensors.
 
     For each sensor in turn (module docstring): :math:`d^2`, log-likelihoods with that sensor's
@@ -95,11 +91,6 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
       max_cluster_tracks: exact-evaluation cap per cluster (see `jpda_marginals`).
       pair_mask: optional [K, M] bools; a False pair is outside the gate in every pass (e.g.
         `jaxtrack.tracking.tracker`'s ``tentative_outside_confirmed``).
-      sensor_blocks: optional static sizes (S ints summing to M) when the detections come in
-        contiguous blocks, sensor 0's first: each pass then reads only its own block (S
-        passes over M detections in all, not S over M each), with the same result. A
-        detection of another sensor inside a block is ignored, as a masked one (checked when
-        the values are concrete).
 
     Returns:
       A `SensorScanResult`.
@@ -124,8 +115,6 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
         _checks.check_shape("track_mask", track_mask, (K,), "one flag per track")
     if pair_mask is not None:
         _checks.check_shape("pair_mask", pair_mask, (K, M), "one flag per track and detection")
-    if sensor_blocks is not None:
-        sensor_blocks = _check_blocks(sensor_blocks, S, M, sensor, meas_mask)
     _checks.check_probability("gate_prob", gate_prob)
     if _checks.is_concrete(gate_prob) and float(gate_prob) <= 0:
         raise ValueError(f"gate_prob must be in (0, 1]; got {gate_prob!r}")
@@ -137,32 +126,12 @@ def sequential_jpda_update(states: Gaussian, zs: Array, H: Array, R: Array, sens
         if _checks.is_concrete(value) and not np.all(ok(np.asarray(value, np.float64))):
             raise ValueError(f"{name} has invalid values: {value!r}")
     return _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob,
-                       meas_mask, track_mask, hard, method, max_cluster_tracks, pair_mask,
-                       sensor_blocks)
+                       meas_mask, track_mask, hard, method, max_cluster_tracks, pair_mask)
 
 
-def _check_blocks(blocks, S, M, sensor, meas_mask):
-    blocks = tuple(blocks)
-    if (len(blocks) != S or any(isinstance(b, bool) or int(b) != b or b < 0 for b in blocks)
-            or sum(blocks) != M):
-        raise ValueError(f"sensor_blocks must be {S} non-negative block sizes summing to the "
-                         f"{M} detections; got {blocks!r}")
-    blocks = tuple(int(b) for b in blocks)
-    if _checks.is_concrete(sensor) and (meas_mask is None or _checks.is_concrete(meas_mask)):
-        want = np.repeat(np.arange(S), blocks)
-        present = np.ones(M, bool) if meas_mask is None else np.asarray(meas_mask, bool)
-        wrong = present & (np.asarray(sensor) != want)
-        if wrong.any():
-            raise ValueError(f"detections {np.flatnonzero(wrong).tolist()} lie outside their "
-                             f"sensor's block of sensor_blocks={blocks!r}")
-    return blocks
-
-
-@functools.partial(jax.jit, static_argnames=("hard", "method", "max_cluster_tracks",
-                                             "sensor_blocks"))
+@functools.partial(jax.jit, static_argnames=("hard", "method", "max_cluster_tracks"))
 def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, meas_mask,
-                track_mask, hard, method, max_cluster_tracks, pair_mask=None,
-                sensor_blocks=None):
+                track_mask, hard, method, max_cluster_tracks, pair_mask=None):
     K = states.mean.shape[0]
     M, m = zs.shape
     S = R.shape[0]
@@ -170,20 +139,18 @@ def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, 
     zs, H, R = jnp.asarray(zs, dtype), jnp.asarray(H, dtype), jnp.asarray(R, dtype)
     sensor = jnp.asarray(sensor)
     present = jnp.ones(M, bool) if meas_mask is None else jnp.asarray(meas_mask, bool)
-    pairs = None if pair_mask is None else jnp.asarray(pair_mask, bool)
     pd_s = jnp.broadcast_to(jnp.asarray(p_detect, dtype), (S,))
     lam_s = jnp.broadcast_to(jnp.asarray(clutter_density, dtype), (S,))
     p_gate = jnp.asarray(gate_prob, dtype)
     threshold = gating.chi2_ppf(p_gate, m)
 
-    def one_sensor(state, s, zs, sensor, present, pairs):
-        """One pass over the detections ``zs`` [B, m] (all, or sensor s's block)."""
+    def one_sensor(state, s):
         mask_s = present & (sensor == s)
         inn = gating.innovations(state.mean, state.cov, zs, H, R, sensor=sensor,
                                  track_mask=track_mask, meas_mask=mask_s)
         gated = inn.valid & (inn.d2 <= threshold)
-        if pairs is not None:
-            gated = gated & pairs
+        if pair_mask is not None:
+            gated = gated & jnp.asarray(pair_mask, bool)
         log_g = jnp.where(gated, inn.log_likelihood - jnp.log(p_gate), -jnp.inf)
         beta, info = jpda.jpda_marginals(log_g, pd_s[s] * p_gate, lam_s[s], track_mask, mask_s,
                                          method, log=True, max_cluster_tracks=max_cluster_tracks,
@@ -197,22 +164,6 @@ def _sequential(states, zs, H, R, sensor, p_detect, clutter_density, gate_prob, 
                                    track_mask=track_mask)
         return post, (beta, col, info.approximate)
 
-    post = Gaussian(jnp.asarray(states.mean, dtype), jnp.asarray(states.cov, dtype))
-    if sensor_blocks is None:
-        post, (beta, col, approx) = lax.scan(
-            lambda st, s: one_sensor(st, s, zs, sensor, present, pairs), post, jnp.arange(S))
-        return SensorScanResult(post, beta, col, approx)
-    # each pass on its own block (static slices, so the S passes are unrolled); its marginals
-    # go back into the [K, M + 1] layout, zero on the other blocks
-    betas, cols, approxs = [], [], []
-    a = 0
-    for s, size in enumerate(sensor_blocks):
-        b = a + size
-        post, (beta_s, col_s, approx_s) = one_sensor(
-            post, s, zs[a:b], sensor[a:b], present[a:b], None if pairs is None else pairs[:, a:b])
-        betas.append(jnp.zeros((K, M + 1), beta_s.dtype).at[:, a:b].set(beta_s[:, :size])
-                     .at[:, M].set(beta_s[:, size]))
-        cols.append(jnp.where(col_s >= 0, col_s + a, -1).astype(jnp.int32))
-        approxs.append(approx_s)
-        a = b
-    return SensorScanResult(post, jnp.stack(betas), jnp.stack(cols), jnp.stack(approxs))
+    states = Gaussian(jnp.asarray(states.mean, dtype), jnp.asarray(states.cov, dtype))
+    post, (beta, col, approx) = lax.scan(one_sensor, states, jnp.arange(S))
+    return SensorScanResult(post, beta, col, approx)

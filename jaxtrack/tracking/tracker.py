@@ -126,11 +126,6 @@ class TrackerConfig:
         three sensors yields three detections in one scan, which a joint JPDA, where each track
         takes at most one detection, must call clutter or other people. Only with
         ``motion="cv"`` and ``motion_term="position"``.
-      sensor_blocks: with ``sensor_update="sequential"``, optional sizes of the scan's
-        per-sensor blocks when its detections come grouped by sensor, sensor 0's first (one
-        size per sensor of ``log_r_std``, summing to M): each sensor's pass then reads only
-        its block (`sequential_jpda_update`'s ``sensor_blocks``), the same result for less
-        work. A scene that concatenates its sensors' fixed-capacity outputs knows them.
     """
 
     capacity: int = 16
@@ -151,7 +146,6 @@ class TrackerConfig:
     motion_term: str = "position"
     distance: str = "squared"
     sensor_update: str = "joint"
-    sensor_blocks: tuple[int, ...] | None = None
 
     def __post_init__(self):
         _checks.check_options("association", (self.association,), ("gnn", "jpda", "nn_jpda"))
@@ -167,15 +161,6 @@ class TrackerConfig:
                                                    or self.motion != "cv"):
             raise ValueError('sensor_update="sequential" needs association="jpda" or "nn_jpda" '
                              'and motion="cv"')
-        if self.sensor_blocks is not None:
-            blocks = self.sensor_blocks
-            if self.sensor_update != "sequential":
-                raise ValueError('sensor_blocks needs sensor_update="sequential"')
-            if (not isinstance(blocks, tuple) or not blocks
-                    or any(isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0
-                           for b in blocks)):
-                raise ValueError(f"sensor_blocks must be a tuple of block sizes >= 0; got "
-                                 f"{blocks!r}")
         if self.motion_term == "position_velocity" and self.association != "gnn":
             raise ValueError('motion_term="position_velocity" needs association="gnn" (the '
                              'JPDA likelihoods are those of the position)')
@@ -876,7 +861,7 @@ def _sequential_update(h, params, hard):
         p_detect=jax.nn.sigmoid(params.logit_p_detect),
         clutter_density=jnp.exp(params.log_clutter_density), gate_prob=params.gate_prob,
         meas_mask=h.mask, track_mask=h.live, hard=hard, method=params.config.jpda_method,
-        pair_mask=h.allowed, sensor_blocks=params.config.sensor_blocks)
+        pair_mask=h.allowed)
     beta = out.beta                                            # [S, K, M + 1]
     live = h.live
     if hard:
@@ -1219,9 +1204,3 @@ def _check(state, det, params):
         S = jnp.shape(params.log_r_std)[0]
         if int(s.min()) < 0 or int(s.max()) >= S:
             raise ValueError(f"detections.sensor must index the {S} sensors of params.log_r_std")
-    blocks = cfg.sensor_blocks
-    if blocks is not None and (len(blocks) != jnp.shape(params.log_r_std)[0]
-                               or sum(blocks) != M):
-        raise ValueError(f"config.sensor_blocks {blocks!r} must give one block per sensor of "
-                         f"params.log_r_std ({jnp.shape(params.log_r_std)[0]}) and sum to the "
-                         f"scan's {M} detections")

@@ -608,13 +608,7 @@ def make_rollout(config: ServiceConfig):
     group_ceiling = jnp.asarray([_CEILING in _SENSOR_GROUPS[gr] for gr in groups])
     any_ceiling = any(_CEILING in _SENSOR_GROUPS[gr] for gr in groups)
 
-    def track_groups(all_tracks, dets, params, n_laser):
-        # the scan is the cameras' slots, then the RGB-D's, then the laser's ``n_laser``
-        # (`sense`): each sensor's sequential pass reads only its own block
-        n_cam = _CAMERA_SLOTS * len(_CAMERA_POSES)
-        blocks = (n_cam, dets[0].shape[0] - n_cam - n_laser, n_laser)
-        params = params._replace(tracker=params.tracker._replace(
-            config=dataclasses.replace(params.tracker.config, sensor_blocks=blocks)))
+    def track_groups(all_tracks, dets, params):
         if len(groups) == 1:
             return (track(all_tracks[0], dets, group_sensors[0], group_ceiling[0], params),)
         stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *all_tracks)
@@ -819,8 +813,7 @@ def make_rollout(config: ServiceConfig):
         else:
             est_state, pi, person_heading = s.estimator, s.interest, s.person_heading
             camera, parked = s.pan, s.parked
-            tracks, *extra = track_groups((s.tracks,) + s.extra_tracks, dets, params,
-                                          sensed.laser_mask.shape[0])
+            tracks, *extra = track_groups((s.tracks,) + s.extra_tracks, dets, params)
             extra = tuple(extra)
             u, done, st, goal, target, dist, track_heading = navigate(s, pose, tracks, ppl,
                                                                       setup, params, full)

@@ -110,65 +110,6 @@ def test_a_pair_mask_takes_pairs_out_of_every_sensors_gate(hard):
                                            clutter_density=0.1, pair_mask=np.ones((3, 6), bool))
 
 
-@pytest.mark.parametrize("hard", [False, True])
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_sensor_blocks_give_the_same_update_from_each_sensors_block(hard, dtype):
-    """Detections grouped by sensor, each pass reading only its block: the posterior, the
-    marginals (in the [S, K, M + 1] layout) and the NN-JPDA choices equal the masked passes'
-    and the step-by-step pipeline's, with a pair mask and with an empty block."""
-    p_detect, clutter = np.array([0.9, 0.7, 0.8]), np.array([0.05, 0.2, 0.1])
-    track_mask = np.array([True, True, False])
-    Hd, Rd = H.astype(dtype), SENSOR_R.astype(dtype)
-    tol = dict(rtol=1e-5, atol=1e-6) if dtype == np.float32 else dict(rtol=1e-10, atol=1e-12)
-    for seed in (0, 3):
-        states, zs, sensor, mask = random_scan(seed, M=9)
-        if seed == 3:
-            sensor[sensor == 1] = 2                     # sensor 1 sees nothing: block of 0
-        order = np.argsort(sensor, kind="stable")
-        zs, sensor, mask = zs[order], sensor[order], mask[order]
-        blocks = tuple(int(np.sum(sensor == s)) for s in range(3))
-        pair_mask = np.random.default_rng(20 + seed).uniform(size=(3, 9)) < 0.8
-        states = Gaussian(states.mean.astype(dtype), states.cov.astype(dtype))
-        kw = dict(p_detect=p_detect, clutter_density=clutter, gate_prob=0.99, meas_mask=mask,
-                  track_mask=track_mask, hard=hard, pair_mask=pair_mask)
-        out = association.sequential_jpda_update(states, zs.astype(dtype), Hd, Rd, sensor,
-                                                 sensor_blocks=blocks, **kw)
-        ref = association.sequential_jpda_update(states, zs.astype(dtype), Hd, Rd, sensor,
-                                                 **kw)
-        assert out.posterior.mean.dtype == dtype and out.beta.shape == ref.beta.shape
-        for a, b in ((out.posterior.mean, ref.posterior.mean),
-                     (out.posterior.cov, ref.posterior.cov), (out.beta, ref.beta)):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), **tol)
-        np.testing.assert_array_equal(np.asarray(out.col_for_row), np.asarray(ref.col_for_row))
-        if dtype == np.float64:
-            pipe = step_by_step(states, zs, sensor, mask, track_mask, p_detect, clutter, 0.99,
-                                hard, pair_mask)
-            np.testing.assert_allclose(np.asarray(out.posterior.mean), np.asarray(pipe.mean),
-                                       **tol)
-    # under jit, with the blocks static
-    run = jax.jit(lambda st, z: association.sequential_jpda_update(
-        st, z, Hd, Rd, sensor, sensor_blocks=blocks, **kw))
-    np.testing.assert_allclose(np.asarray(run(states, zs.astype(dtype)).posterior.mean),
-                               np.asarray(out.posterior.mean), **tol)
-
-
-def test_sensor_blocks_are_checked():
-    states, zs, sensor, mask = random_scan(0, M=6)
-    sensor = np.array([0, 0, 1, 1, 2, 2])
-    kw = dict(p_detect=0.9, clutter_density=0.1, meas_mask=np.ones(6, bool))
-    for bad in ((2, 2), (2, 2, 1), (2, -1, 5), (2, 2.5, 1.5)):
-        with pytest.raises(ValueError, match="sensor_blocks must be 3"):
-            association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor,
-                                               sensor_blocks=bad, **kw)
-    with pytest.raises(ValueError, match=r"detections \[2\] lie outside"):
-        association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor,
-                                           sensor_blocks=(3, 1, 2), **kw)
-    # a masked detection may sit anywhere
-    association.sequential_jpda_update(states, zs, H, SENSOR_R, sensor, sensor_blocks=(3, 1, 2),
-                                       p_detect=0.9, clutter_density=0.1,
-                                       meas_mask=np.array([1, 1, 0, 1, 1, 1], bool))
-
-
 def test_masked_tracks_are_unchanged_and_bad_inputs_rejected():
     states, zs, sensor, mask = random_scan(5)
     track_mask = np.array([True, False, True])

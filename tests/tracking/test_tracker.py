@@ -825,35 +825,6 @@ def test_sequential_sensor_update_runs_a_scan_sequence_and_needs_jpda_with_cv():
         tracking.TrackerConfig(sensor_update="stacked")
 
 
-def test_sensor_blocks_give_the_same_tracks_and_are_checked():
-    """The scan's detections come one per sensor in sensor order: with ``sensor_blocks=(1, 1)``
-    each pass reads its own block, and the tracks over the sequence are the same."""
-    det, _ = _two_sensor_scenario()
-    runs = []
-    for blocks in (None, (1, 1)):
-        cfg = tracking.TrackerConfig(capacity=6, association="nn_jpda",
-                                     sensor_update="sequential", merge_distance=0.4,
-                                     sensor_blocks=blocks)
-        p = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.05, 0.3),
-                                          dtype=jnp.float64)
-        runs.append(jax.jit(tracking.run)(tracking.init(cfg, jnp.float64), det, p)[1])
-    np.testing.assert_array_equal(np.asarray(runs[0].status), np.asarray(runs[1].status))
-    np.testing.assert_allclose(np.asarray(runs[0].mean), np.asarray(runs[1].mean), rtol=1e-12,
-                               atol=1e-12)
-    with pytest.raises(ValueError, match='sensor_blocks needs sensor_update="sequential"'):
-        tracking.TrackerConfig(association="nn_jpda", sensor_blocks=(1, 1))
-    for bad in ((), [1, 1], (1, -1), (1.0, 1)):
-        with pytest.raises(ValueError, match="sensor_blocks must be a tuple"):
-            tracking.TrackerConfig(association="nn_jpda", sensor_update="sequential",
-                                   sensor_blocks=bad)
-    cfg = tracking.TrackerConfig(capacity=6, association="nn_jpda", sensor_update="sequential",
-                                 sensor_blocks=(2, 1))
-    p = tracking.TrackerParams.create(cfg, dt=0.1, r_std=(0.05, 0.3), dtype=jnp.float64)
-    frame = jax.tree_util.tree_map(lambda x: x[0], det)
-    with pytest.raises(ValueError, match="must give one block per sensor"):
-        tracking.step(tracking.init(cfg, jnp.float64), frame, p)
-
-
 @pytest.mark.parametrize("assoc, update", [("gnn", "joint"), ("jpda", "joint"),
                                            ("nn_jpda", "joint"), ("jpda", "sequential"),
                                            ("nn_jpda", "sequential")])
