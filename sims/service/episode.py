@@ -79,6 +79,8 @@ HEADING_SEGMENTS = 3
 """Pieces of the sustained heading filter's window (`windowed_heading_step`'s segments)."""
 INTIMATE, PERSONAL = costmap.INTIMATE, costmap.PERSONAL
 GOAL_TOLERANCE = 0.25
+MAP_FILTER_CELL = 0.1
+"""Largest cell (m) of the static map that drops detections inside walls and furniture."""
 COVERED_OCCLUSION = 0.25
 """Largest hidden fraction at which a ceiling camera is taken to see a robot detection's
 place (the cameras' own detector misses people hidden by more than half)."""
@@ -110,7 +112,8 @@ class ServiceConfig:
       interest: ``approach``: seed 002's person interest, fixed in [0, 1], or None to estimate it
         with the case base.
       duration: seconds; control_dt: frame period (s).
-      cell: costmap cell (m). replan_every: frames between full solves of the distance field
+      cell: costmap cell (m; the detections' map filter keeps `MAP_FILTER_CELL` or finer,
+        `free_space`). replan_every: frames between full solves of the distance field
         (`jaxtrack.control.grid_planner.distance_field`); sweeps: planner rounds at the frames
         between (`jaxtrack.control.grid_planner.refine`, from the last frame's field). Rounds
         lower stale values at once but raise them by about one cell's cost per round, so a
@@ -359,6 +362,32 @@ def cameras(dtype=jnp.float32) -> ceiling_camera.CeilingCamera:
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *cams)
 
 
+def free_space(config: ServiceConfig, dtype=jnp.float32):
+    """``in_free_space(zs [N, 2]) -> [N]`` bools: map-frame points inside the flat and off its
+    walls and furniture (the static layer's finite cells), the map filter of the detections.
+
+    Its grid has the costmap's cell or `MAP_FILTER_CELL`, whichever is finer: the static
+    layer's obstacles grow by half a cell, and with 0.2 m cells the couch swallowed the
+    detections of the people seated on it (the TV experiment's MOTA fell from 99.3 to 94.6 %).
+
+    Example:
+      >>> keep = free_space(config)(detections_xy)
+    """
+    free_config = dataclasses.replace(config, cell=min(config.cell, MAP_FILTER_CELL))
+    g = grid(free_config)
+    pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
+                           jnp.asarray(g.shape, jnp.int32))
+    free = jnp.isfinite(jnp.asarray(static_cost(free_config), dtype))
+    half = 0.5 * jnp.asarray(flat.SIZE, dtype)
+
+    def in_free_space(zs):
+        inside = jnp.all(jnp.abs(zs) < half, -1)
+        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0).astype(dtype))
+        return inside & free[cell[:, 0], cell[:, 1]]
+
+    return in_free_space
+
+
 def _in_box(box, xy):
     x0, y0, x1, y1 = box
     return (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
@@ -461,6 +490,7 @@ def make_rollout(config: ServiceConfig):
     pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
                            jnp.asarray(g.shape, jnp.int32))
     static = jnp.asarray(static_cost(config), dtype)
+    in_free_space = free_space(config, dtype)
     inflate_cells = int(round((config.robot_radius + config.safety_margin) / config.cell))
     cams = cameras(dtype)
     rooms = np.asarray(_CAMERA_ROOMS)
@@ -505,12 +535,6 @@ def make_rollout(config: ServiceConfig):
                             pan_tilt.init(dtype), jnp.asarray(False),
                             jax.vmap(lambda p: heading_filter.windowed_heading_init(
                                 0.0, p, window))(jnp.zeros((_TRACKER.capacity, 2), dtype)))
-
-    def in_free_space(zs):
-        """[N] map-frame points inside the flat and off its walls and furniture."""
-        inside = jnp.all(jnp.abs(zs) < 0.5 * jnp.asarray(flat.SIZE, dtype), -1)
-        cell = grid_planner.cell_of(pg, jnp.where(inside[:, None], zs, 0.0))
-        return inside & jnp.isfinite(static[cell[:, 0], cell[:, 1]])
 
     def world_step(key, s: State):
         ppl = s.people._replace(steps=s.people.steps & (s.t < still_from))

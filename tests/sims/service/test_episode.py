@@ -186,6 +186,37 @@ def test_static_layer_blocks_walls_and_keeps_doors_and_corridor_free(scene):
     assert at(-5.85, 0.0) >= 1.0                                    # too near the outer wall
 
 
+def test_the_detections_map_filter_does_not_coarsen_with_the_planners_cell(scene):
+    """A seated person's detection (near their seat) is kept by the map filter with 0.1 m
+    and 0.2 m costmap cells alike, and the filter's answer is the same for both cells on
+    random points; points in walls and outside the flat are dropped."""
+    rng = np.random.default_rng(4)
+    # a seated person's centre, up to 5 cm towards the backrest, 15 cm sideways or forwards
+    seats = np.concatenate([flat.SEATS + rng.uniform([-0.05, -0.15], [0.15, 0.15], (3, 2))
+                            for _ in range(8)])
+    pts = np.concatenate([rng.uniform(-6.5, 6.5, (300, 1)), rng.uniform(-4.5, 4.5, (300, 1))], 1)
+    keep = {}
+    for cell in (0.1, 0.2):
+        cfg = ep.ServiceConfig(scene, experiment="tv", cell=cell)
+        f = ep.free_space(cfg)
+        assert np.asarray(f(jnp.asarray(seats, jnp.float32))).all(), cell
+        keep[cell] = np.asarray(f(jnp.asarray(pts, jnp.float32)))
+        assert not np.asarray(f(jnp.asarray([[0.0, 0.0], [7.0, 0.0]], jnp.float32))).any()
+    np.testing.assert_array_equal(keep[0.1], keep[0.2])
+    assert 0.3 < keep[0.1].mean() < 0.95
+    # what the filter was: each cell's own static layer, which at 0.2 m dropped about half of
+    # a seated person's detections (0.1 m noise), against a sixth at 0.1 m
+    z = flat.SEATS[0] + 0.1 * rng.standard_normal((2000, 2))
+    kept = {}
+    for cell in (0.1, 0.2):
+        layer = ep.static_cost(ep.ServiceConfig(scene, experiment="tv", cell=cell))
+        j, i = np.round((z + 0.5 * np.asarray(flat.SIZE)) / cell - 0.5).astype(int).T
+        kept[cell] = np.isfinite(layer[i, j]).mean()
+    assert kept[0.2] < 0.6 < 0.8 < kept[0.1]
+    np.testing.assert_allclose(np.asarray(ep.free_space(cfg)(jnp.asarray(z, jnp.float32))).mean(),
+                               kept[0.1], atol=0.01)
+
+
 def test_each_room_is_covered_by_a_ceiling_camera():
     cams = ep.cameras()
     rooms = experiments.free_floor()
