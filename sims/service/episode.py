@@ -362,6 +362,12 @@ def cameras(dtype=jnp.float32) -> ceiling_camera.CeilingCamera:
     return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *cams)
 
 
+def _planner_grid(g: costmap.Grid) -> grid_planner.Grid:
+    """The costmap grid as the planner indexes it (its origin is cell (0, 0)'s centre)."""
+    return grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
+                             jnp.asarray(g.shape, jnp.int32))
+
+
 def free_space(config: ServiceConfig, dtype=jnp.float32):
     """``in_free_space(zs [N, 2]) -> [N]`` bools: map-frame points inside the flat and off its
     walls and furniture (the static layer's finite cells), the map filter of the detections.
@@ -374,9 +380,7 @@ def free_space(config: ServiceConfig, dtype=jnp.float32):
       >>> keep = free_space(config)(detections_xy)
     """
     free_config = dataclasses.replace(config, cell=min(config.cell, MAP_FILTER_CELL))
-    g = grid(free_config)
-    pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
-                           jnp.asarray(g.shape, jnp.int32))
+    pg = _planner_grid(grid(free_config))
     free = jnp.isfinite(jnp.asarray(static_cost(free_config), dtype))
     half = 0.5 * jnp.asarray(flat.SIZE, dtype)
 
@@ -487,8 +491,7 @@ def make_rollout(config: ServiceConfig):
     laser = world.laser_world(sc, scfg.laser, dtype)
     static_map = world.static_map(sc, laser, scfg.map_filter)
     g = grid(config)
-    pg = grid_planner.Grid(g.origin + 0.5 * g.resolution, g.resolution,
-                           jnp.asarray(g.shape, jnp.int32))
+    pg = _planner_grid(g)
     static = jnp.asarray(static_cost(config), dtype)
     in_free_space = free_space(config, dtype)
     inflate_cells = int(round((config.robot_radius + config.safety_margin) / config.cell))

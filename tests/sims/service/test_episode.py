@@ -215,6 +215,9 @@ def test_the_detections_map_filter_does_not_coarsen_with_the_planners_cell(scene
     assert kept[0.2] < 0.6 < 0.8 < kept[0.1]
     np.testing.assert_allclose(np.asarray(ep.free_space(cfg)(jnp.asarray(z, jnp.float32))).mean(),
                                kept[0.1], atol=0.01)
+    # no detections, and NaN ones (dropped)
+    assert np.asarray(f(jnp.zeros((0, 2), jnp.float32))).shape == (0,)
+    assert not np.asarray(f(jnp.asarray([[np.nan, 0.6], [3.05, np.nan]], jnp.float32))).any()
 
 
 def test_each_room_is_covered_by_a_ceiling_camera():
