@@ -180,8 +180,10 @@ def main(argv: list[str] | None = None) -> int:
                           "pose is judged once the person has stood still that long")
     svc.add_argument("--line-of-sight", action="store_true",
                      help="drop the RGB-D detections behind the laser's range on their bearing "
-                          "(the simulated detector's false positives otherwise fall through "
-                          "walls)")
+                          "(behind a wall or a person)")
+    svc.add_argument("--births", choices=("corroborated", "any"), default="corroborated",
+                     help="where no ceiling camera sees, an RGB-D detection starts a track only "
+                          "with a laser detection beside it (corroborated), or always (any)")
     svc.add_argument("--replan-every", type=int, default=5, metavar="FRAMES",
                      help="navigation: frames between full solves of the planner's distance "
                           "field, refined in the frames between (fewer solves run faster)")
@@ -468,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
                     reverse=args.reverse, settle_iterations=args.settle,
                     still_at_end=args.still_at_end, heading_frame=args.heading_frame,
                     line_of_sight=args.line_of_sight, replan_every=args.replan_every,
-                    cell=args.cell)
+                    cell=args.cell, corroborated_births=args.births == "corroborated")
         return 0
     if args.scene == "rgbd-people":
         if args.episodes < 1 or not (math.isfinite(args.duration) and args.duration > 0):

@@ -71,7 +71,7 @@ Array = jax.Array
 __all__ = ["ServiceConfig", "ServiceParams", "Frame", "PERCEPTION", "make_params",
            "make_rollout", "make_episode", "summarize", "static_cost", "cameras", "grid",
            "build_scene", "HEADING_FILTERS", "INTIMATE", "PERSONAL", "GOAL_TOLERANCE",
-           "behind_the_scan"]
+           "behind_the_scan", "corroborated", "CORROBORATION"]
 
 PERCEPTION = ("all", "ceiling", "robot", "truth")
 HEADING_FILTERS = ("ar", "windowed", "sustained")
@@ -85,6 +85,10 @@ COVERED_OCCLUSION = 0.25
 """Largest hidden fraction at which a ceiling camera is taken to see a robot detection's
 place (the cameras' own detector misses people hidden by more than half)."""
 MOT_THRESHOLD = 0.5
+CORROBORATION = 0.9
+"""Largest distance (m) of a laser detection that corroborates an RGB-D one
+(``corroborated_births``): 0.95 of the difference of the two sensors' errors (0.3 and 0.2 m
+per axis) falls within it."""
 _SENSOR_GROUPS = {"all": (0, 1, 2), "ceiling": (0,), "robot": (1, 2)}
 _CEILING, _RGBD, _LASER = 0, 1, 2
 _CAMERA_SLOTS = 4
@@ -164,8 +168,12 @@ class ServiceConfig:
         (m^2/s^4; the following scene's 4 keeps up with a walking user's turns, but gives a
         still person a velocity estimate noisy enough to swing the heading filter).
       line_of_sight: drop the RGB-D detections more than 0.5 m beyond the laser's range on
-        their bearing (behind a wall or a person, where the camera cannot see either); the
-        simulated detector's false positives otherwise fall through walls.
+        their bearing (behind a wall or a person, where the camera cannot see either).
+      corroborated_births: with the ceiling cameras among a tracker's sensors, an RGB-D
+        detection that no camera sees (`track`) starts a track only when a laser detection
+        lies within `CORROBORATION` (`corroborated`). False: any robot detection there does;
+        the RGB-D clutter in each room camera's blind corner then made false tracks that the
+        cameras alone do not have.
       arc_check: seconds of the commanded arc checked against the people's inflated lethal
         cores each frame: if it enters one, the robot turns on the spot instead of driving
         (0: no check; navigation experiments).
@@ -206,6 +214,7 @@ class ServiceConfig:
     heading_min_distance: float | None = None
     person_q: float = 0.5
     line_of_sight: bool = False
+    corroborated_births: bool = True
     arc_check: float = 0.5
     hold_radius: float = 0.5
     robot_radius: float = 0.3
@@ -619,12 +628,16 @@ def make_rollout(config: ServiceConfig):
         threshold: it updates the tracks but starts none (were a person there, the camera
         would have started their track; the robot's noisier, clutter-prone detections there
         only made false tracks). Where the cameras cannot see, behind tracked people or out
-        of their view, the robot's detections start tracks."""
+        of their view, the robot's detections start tracks; with ``corroborated_births``, an
+        RGB-D detection there only when the laser sees legs beside it (`corroborated`)."""
         zs, ok, sensor = dets
         keep = ok & in_group[sensor]
         confidence = jnp.ones(zs.shape[0], dtype)
         if any_ceiling:     # static: no group with the cameras computes no coverage
-            confidence = jnp.where(with_ceiling & covered(zs, sensor, tracks), 0.5, 1.0)
+            unborn = covered(zs, sensor, tracks)
+            if config.corroborated_births:
+                unborn = unborn | ((sensor == _RGBD) & ~corroborated(zs, keep, sensor))
+            confidence = jnp.where(with_ceiling & unborn, 0.5, 1.0)
         det = tracker.Detections(jnp.where(keep[:, None], zs, 0.0), keep, sensor,
                                  confidence.astype(dtype), jnp.zeros((zs.shape[0], 0), dtype))
         return tracker.step(tracks, det, params.tracker)
@@ -877,6 +890,30 @@ def make_rollout(config: ServiceConfig):
         return frames
 
     return rollout
+
+
+def corroborated(zs: Array, keep: Array, sensor: Array,
+                 radius: float = CORROBORATION) -> Array:
+    """[M] bool: the kept RGB-D detections (sensor code 1) with a kept laser detection (code 2)
+    closer than ``radius`` (m); False for every other row.
+
+    The RGB-D detector's and the laser's false positives fall independently, so two of them
+    rarely coincide, while a person in view of both gives one of each; ``corroborated_births``
+    lets an RGB-D detection that no ceiling camera sees start a track only when corroborated.
+
+    Args:
+      zs: [M, 2] detections (map frame). keep: [M] bool, the valid ones. sensor: [M] int
+        sensor codes (0 ceiling, 1 RGB-D, 2 laser).
+
+    Example:
+      >>> corroborated(jnp.array([[0.0, 0.0], [0.5, 0.0], [3.0, 0.0]]),
+      ...              jnp.array([True, True, True]), jnp.array([1, 2, 1]))
+      Array([ True, False, False], dtype=bool)
+    """
+    laser = keep & (sensor == _LASER)
+    d2 = jnp.sum((zs[:, None] - zs[None]) ** 2, -1)
+    near = jnp.any(laser[None] & (d2 < radius ** 2), -1)
+    return keep & (sensor == _RGBD) & near
 
 
 def behind_the_scan(xy: Array, ranges: Array, angles: Array, laser_pose: Array,

@@ -91,7 +91,8 @@ def paired_difference(a, b, z: float = 1.96):
 @functools.lru_cache(maxsize=16)
 def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
              pan=False, reverse=False, settle_iterations=0, still_at_end=0.0,
-             heading_frame="odom", line_of_sight=False, replan_every=5, cell=0.1):
+             heading_frame="odom", line_of_sight=False, replan_every=5, cell=0.1,
+             corroborated_births=True):
     from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
 
@@ -101,7 +102,8 @@ def _episode(experiment, perception, compare_sensors, interest, duration, headin
                            pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse,
                            settle_iterations=settle_iterations, still_at_end=still_at_end,
                            heading_frame=heading_frame, line_of_sight=line_of_sight,
-                           replan_every=replan_every, cell=cell)
+                           replan_every=replan_every, cell=cell,
+                           corroborated_births=corroborated_births)
     return cfg, ep.make_episode(cfg)
 
 
@@ -120,12 +122,13 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 reverse: bool = False, settle_iterations: int = 0,
                 still_at_end: float = 0.0, heading_frame: str = "odom",
                 line_of_sight: bool = False, replan_every: int = 5,
-                cell: float = 0.1) -> dict:
+                cell: float = 0.1, corroborated_births: bool = True) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     ``replan_every``: frames between full solves of the planner's distance field (refined a
-    few rounds in the frames between); ``cell``: the costmap's cell (m)
-    (`sims.service.episode.ServiceConfig`).
+    few rounds in the frames between); ``cell``: the costmap's cell (m);
+    ``corroborated_births``: RGB-D detections no ceiling camera sees start tracks only beside
+    a laser detection (`sims.service.episode.ServiceConfig`).
 
     Returns ``{"table", "metrics", "compile_seconds", "run_seconds"}``.
 
@@ -141,7 +144,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                                None if interest is None else float(interest), float(duration),
                                heading_filter, pan, bool(reverse), int(settle_iterations),
                                float(still_at_end), heading_frame, bool(line_of_sight),
-                               int(replan_every), float(cell))
+                               int(replan_every), float(cell), bool(corroborated_births))
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
@@ -162,7 +165,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 if experiment == "handover" and heading_filter != "ar" else "")
              + (", RGB-D in the laser's line of sight" if line_of_sight else "")
              + (f", full replan every {replan_every} frames" if replan_every != 5 else "")
-             + (f", {cell:g} m cells" if cell != 0.1 else ""))
+             + (f", {cell:g} m cells" if cell != 0.1 else "")
+             + ("" if corroborated_births else ", uncorroborated RGB-D births"))
     table = metrics_table(m, title, experiment)
     print(table, file=stream)
     print(f"simulated in {run_s:.1f} s after {compile_s:.1f} s of compilation "

@@ -299,3 +299,27 @@ def test_rgbd_detections_behind_the_laser_scan_are_found(dtype):
     none = ep.behind_the_scan(jnp.zeros((0, 2), dtype), jnp.asarray(ranges),
                               jnp.asarray(angles), jnp.asarray(laser_pose))
     assert none.shape == (0,) and none.dtype == bool
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_rgbd_detections_are_corroborated_by_a_laser_detection_beside_them(dtype):
+    """Against a plain loop over random detections of the three sensors, some masked."""
+    rng = np.random.default_rng(2)
+    M = 60
+    zs = rng.uniform(-3.0, 3.0, (M, 2)).astype(dtype)
+    sensor = rng.integers(0, 3, M).astype(np.int32)
+    keep = rng.uniform(size=M) < 0.8
+    got = np.asarray(ep.corroborated(jnp.asarray(zs), jnp.asarray(keep), jnp.asarray(sensor)))
+    want = np.zeros(M, bool)
+    for i in range(M):
+        if keep[i] and sensor[i] == 1:
+            want[i] = any(keep[j] and sensor[j] == 2
+                          and np.hypot(*(zs[i] - zs[j])) < ep.CORROBORATION for j in range(M))
+    np.testing.assert_array_equal(got, want)
+    assert 5 < want.sum() < (sensor == 1).sum()       # both outcomes occur
+    # a masked laser detection corroborates nothing; no detections, no flags
+    one = ep.corroborated(jnp.asarray([[0.0, 0.0], [0.3, 0.0]], dtype), jnp.asarray([True, False]),
+                          jnp.asarray([1, 2]))
+    assert not np.any(np.asarray(one))
+    none = ep.corroborated(jnp.zeros((0, 2), dtype), jnp.zeros(0, bool), jnp.zeros(0, np.int32))
+    assert none.shape == (0,) and none.dtype == bool
