@@ -111,6 +111,10 @@ class TrackerConfig:
         track born of clutter beside a person takes that person's noisier detections (a 0.3 m
         RGB-D detection lands in its wide new gate) and is confirmed by them: a false track
         that then coasts away. Tracks start outside live gates anyway (``births_in_gates``).
+      tentative_from_births: a detection under ``birth_confidence`` updates no tentative
+        track: one that may not start a track does not confirm one either (else clutter of a
+        sensor trusted to start tracks, confirmed by the clutter of one that is not, becomes
+        a false track that neither sensor alone makes).
       motion_term: the Mahalanobis distance of the GNN cost and gate. "position": of the
         detected position. "position_velocity" (seed 001, section IV-B: "the Mahalanobis
         distance of the detection position and estimated velocity from the predicted state"):
@@ -143,6 +147,7 @@ class TrackerConfig:
     merge_distance: float = 0.0
     births_in_gates: bool = False
     tentative_outside_confirmed: bool = False
+    tentative_from_births: bool = False
     motion_term: str = "position"
     distance: str = "squared"
     sensor_update: str = "joint"
@@ -685,9 +690,15 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
         d2 = inn.d2
         gated = association.gate(d2, 2, params.gate_prob, live, mask)
     allowed = None
+    tentative = (state.status == TENTATIVE)[:, None]
     if cfg.tentative_outside_confirmed:
         claimed = jnp.any(gated & (state.status == CONFIRMED)[:, None], 0)      # [M]
-        allowed = ~((state.status == TENTATIVE)[:, None] & claimed[None, :])   # [K, M]
+        allowed = ~(tentative & claimed[None, :])                              # [K, M]
+    if cfg.tentative_from_births:
+        unborn = detections.confidence < params.birth_confidence                # [M]
+        unborn_ok = ~(tentative & unborn[None, :])
+        allowed = unborn_ok if allowed is None else allowed & unborn_ok
+    if allowed is not None:
         gated = gated & allowed
     features = detections.features.astype(dtype)
     if cfg.num_features:

@@ -286,7 +286,7 @@ class ServiceParams(NamedTuple):
 
 _TRACKER = tracker.TrackerConfig(capacity=8, association="nn_jpda", sensor_update="sequential",
                                  merge_distance=0.4, max_misses=10,
-                                 tentative_outside_confirmed=True)
+                                 tentative_outside_confirmed=True, tentative_from_births=True)
 
 
 def _kf_config(config: ServiceConfig) -> user.RobotFrameKFConfig:

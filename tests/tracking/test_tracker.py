@@ -878,3 +878,41 @@ def test_a_tentative_track_takes_no_detection_inside_a_confirmed_tracks_gate(ass
     np.testing.assert_array_equal(off_b[0], on_b[0])
     np.testing.assert_allclose(np.asarray(on_b[1].posterior.mean),
                                np.asarray(off_b[1].posterior.mean))
+
+
+@pytest.mark.parametrize("assoc, update", [("gnn", "joint"), ("nn_jpda", "joint"),
+                                           ("nn_jpda", "sequential")])
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_a_detection_that_may_not_start_a_track_confirms_none(assoc, update, dtype):
+    """A confirmed track at the origin and a tentative one at (2, 0), each with a detection on
+    it. With ``tentative_from_births``, a detection under the birth confidence updates the
+    confirmed track but not the tentative one (its posterior is its prediction, no hit); at
+    the birth confidence it updates both. Without the option confidence changes nothing."""
+    mean = np.array([[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0, 0, 0, 0]])
+    cov = np.stack([np.diag([0.01, 0.01, 0.1, 0.1]), np.diag([0.09, 0.09, 0.25, 0.25]),
+                    np.eye(4)])
+    hits = {}
+    for option in (False, True):
+        cfg = tracking.TrackerConfig(capacity=3, association=assoc, sensor_update=update,
+                                     tentative_from_births=option)
+        params = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.1, 0.3),
+                                               clutter_density=0.05, birth_confidence=0.75,
+                                               dtype=dtype)
+        state = tracking.init(cfg, dtype)._replace(
+            mean=jnp.asarray(mean, dtype), cov=jnp.asarray(cov, dtype),
+            status=jnp.asarray([2, 1, 0], jnp.int32), id=jnp.asarray([0, 1, -1], jnp.int32),
+            hits=jnp.asarray([5, 1, 0], jnp.int32), history=jnp.asarray([31, 1, 0], jnp.int32))
+        pred = tracker.predict(state, params)
+        for conf in (0.5, 0.75):
+            det = tracking.Detections(jnp.asarray([[0.05, 0.0], [2.1, 0.05]], dtype),
+                                      jnp.ones(2, bool), jnp.asarray([1, 1], jnp.int32),
+                                      jnp.full(2, conf, dtype), jnp.zeros((2, 0), dtype))
+            hyp = tracker.hypothesise(state, pred, det, params)
+            a = tracker.associate(hyp, params)
+            hits[option, conf] = np.asarray(a.hit)[:2]
+            if option and conf == 0.5:
+                np.testing.assert_allclose(np.asarray(a.posterior.mean[1]),
+                                           np.asarray(pred.mean[1]), rtol=1e-6)
+    np.testing.assert_array_equal(hits[True, 0.5], [True, False])
+    for key in ((False, 0.5), (False, 0.75), (True, 0.75)):
+        np.testing.assert_array_equal(hits[key], [True, True])
