@@ -169,17 +169,20 @@ def test_service_approach_options_reach_the_run(monkeypatch):
     assert cli.main(["run", "service", "--experiment", "approach", "--interest", "0.5",
                      "--heading-filter", "sustained", "--pan", "--reverse", "--episodes", "4",
                      "--settle", "200", "--still-at-end", "5", "--heading-frame", "map",
-                     "--line-of-sight", "--replan-every", "10", "--cell", "0.2"]) == 0
+                     "--line-of-sight", "--replan-every", "10", "--cell", "0.2",
+                     "--births", "any"]) == 0
     assert seen["args"][:2] == ("approach", 4) and seen["args"][5] == 0.5
     assert seen["kw"] == {"heading_filter": "sustained", "pan": True, "reverse": True,
                           "settle_iterations": 200, "still_at_end": 5.0, "heading_frame": "map",
-                          "line_of_sight": True, "replan_every": 10, "cell": 0.2}
+                          "line_of_sight": True, "replan_every": 10, "cell": 0.2,
+                          "corroborated_births": False}
     assert cli.main(["run", "service", "--experiment", "approach"]) == 0
     assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False,
                           "settle_iterations": 0, "still_at_end": 0.0, "heading_frame": "odom",
-                          "line_of_sight": False, "replan_every": 5, "cell": 0.1}
+                          "line_of_sight": False, "replan_every": 5, "cell": 0.1,
+                          "corroborated_births": True}
     for bad in (["--settle", "-1"], ["--still-at-end", "90"], ["--replan-every", "0"],
-                ["--cell", "0.01"]):
+                ["--cell", "0.01"], ["--births", "some"]):
         with pytest.raises(SystemExit):
             cli.main(["run", "service", "--experiment", "approach"] + bad)
 
