@@ -93,6 +93,10 @@ _SENSOR_GROUPS = {"all": (0, 1, 2), "ceiling": (0,), "robot": (1, 2)}
 _CEILING, _RGBD, _LASER = 0, 1, 2
 _CAMERA_SLOTS = 4
 _LETHAL_PENALTY = 25.0
+PATH_AHEAD = 2.5
+"""Length (m) of the path extracted from the robot each frame: pure pursuit reads it only up to
+the lookahead (0.6 m) beyond the point nearest the robot, so a longer path changes no command
+while its descent costs a step per cell. A lookahead beyond about 2.3 m aims at its end."""
 _STATURE, _BODY_RADIUS = 1.7, 0.25
 
 
@@ -470,18 +474,24 @@ def _inflate(cost: Array, cells: int) -> Array:
 
     The disc is a stack of rows: row ``di`` spans the columns ``|dj| <= w(di)``, so the maximum
     is taken along the rows first (one running maximum per half-width), then across them:
-    about 4 * cells shifted copies of the map instead of the disc's pi * cells^2."""
+    about 4 * cells shifted copies of the map instead of the disc's pi * cells^2. The shifts
+    are slices of maps padded on one axis only (a running maximum along the rows pads the
+    columns; the rows' maximum of one half-width pads the rows once): in isolation 1.7x faster
+    than rolling copies of a map padded on both axes (64 maps of 80 x 120, 4 cells)."""
     H, W = cost.shape
     half = [math.isqrt(cells * cells - di * di) for di in range(cells + 1)]
-    pad = jnp.pad(cost, cells, constant_values=0.0)
-    rows = {0: pad}
-    run = pad
-    for w in range(1, max(half) + 1):
-        run = jnp.maximum(run, jnp.maximum(jnp.roll(pad, w, 1), jnp.roll(pad, -w, 1)))
-        rows[w] = run
+    cols = jnp.pad(cost, ((0, 0), (cells, cells)))
+    run = cost
     out = cost
-    for di in range(-cells, cells + 1):
-        out = jnp.maximum(out, rows[half[abs(di)]][cells + di:cells + di + H, cells:cells + W])
+    for w in range(max(half) + 1):
+        if w:
+            run = jnp.maximum(run, jnp.maximum(cols[:, cells + w:cells + w + W],
+                                               cols[:, cells - w:cells - w + W]))
+        offsets = [di for di in range(-cells, cells + 1) if half[abs(di)] == w]
+        if offsets:
+            rows = jnp.pad(run, ((cells, cells), (0, 0)))
+            for di in offsets:
+                out = jnp.maximum(out, rows[cells + di:cells + di + H])
     return out
 
 
@@ -504,6 +514,7 @@ def make_rollout(config: ServiceConfig):
     static = jnp.asarray(static_cost(config), dtype)
     in_free_space = free_space(config, dtype)
     inflate_cells = int(round((config.robot_radius + config.safety_margin) / config.cell))
+    path_cells = math.ceil(PATH_AHEAD / config.cell) + 1
     cams = cameras(dtype)
     rooms = np.asarray(_CAMERA_ROOMS)
     sitting = _areas(flat.SITTING_AREAS, dtype)
@@ -732,7 +743,8 @@ def make_rollout(config: ServiceConfig):
                 start_cell=start if config.solve_to_robot else None),
             lambda: grid_planner.refine(s.dist, plan_cost, goal_cell, config.sweeps,
                                         cell=config.cell))
-        path = grid_planner.extract_path(dist, start, 48, cost=plan_cost, cell=config.cell)
+        path = grid_planner.extract_path(dist, start, path_cells, cost=plan_cost,
+                                         cell=config.cell)
         aim = grid_planner.lookahead_point(pg, path.cells, path.valid, pose[:2],
                                            params.lookahead)
         aim = jnp.where(geometry.safe_norm(goal - pose[:2]) < params.lookahead, goal, aim)
