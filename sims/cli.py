@@ -184,9 +184,10 @@ def main(argv: list[str] | None = None) -> int:
     svc.add_argument("--births", choices=("corroborated", "any"), default="corroborated",
                      help="where no ceiling camera sees, an RGB-D detection starts a track only "
                           "with a laser detection beside it (corroborated), or always (any)")
-    svc.add_argument("--replan-every", type=int, default=5, metavar="FRAMES",
+    svc.add_argument("--replan-every", type=int, default=None, metavar="FRAMES",
                      help="navigation: frames between full solves of the planner's distance "
-                          "field, refined in the frames between (fewer solves run faster)")
+                          "field, refined in the frames between (fewer solves run faster; "
+                          "default: the scene's, 20)")
     svc.add_argument("--cell", type=float, default=0.1, metavar="METRES",
                      help="navigation: the costmap's and planner's cell size (0.05-0.5; 0.2 "
                           "runs about twice as fast)")
@@ -455,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
                              f"{args.interest!r}")
         if args.settle < 0 or not 0.0 <= args.still_at_end <= args.duration:
             parser.error("--settle must be >= 0 and --still-at-end in [0, --duration]")
-        if args.replan_every < 1:
+        if args.replan_every is not None and args.replan_every < 1:
             parser.error(f"--replan-every must be >= 1; got {args.replan_every}")
         if not 0.05 <= args.cell <= 0.5:
             parser.error(f"--cell must be in [0.05, 0.5] m; got {args.cell}")

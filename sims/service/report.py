@@ -91,7 +91,7 @@ def paired_difference(a, b, z: float = 1.96):
 @functools.lru_cache(maxsize=16)
 def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
              pan=False, reverse=False, settle_iterations=0, still_at_end=0.0,
-             heading_frame="odom", line_of_sight=False, replan_every=5, cell=0.1,
+             heading_frame="odom", line_of_sight=False, replan_every=None, cell=0.1,
              corroborated_births=True):
     from jaxtrack.control import pan_tilt
     from sims.service import episode as ep
@@ -102,8 +102,8 @@ def _episode(experiment, perception, compare_sensors, interest, duration, headin
                            pan=pan_tilt.PanTiltConfig() if pan else None, reverse=reverse,
                            settle_iterations=settle_iterations, still_at_end=still_at_end,
                            heading_frame=heading_frame, line_of_sight=line_of_sight,
-                           replan_every=replan_every, cell=cell,
-                           corroborated_births=corroborated_births)
+                           cell=cell, corroborated_births=corroborated_births,
+                           **({} if replan_every is None else {"replan_every": replan_every}))
     return cfg, ep.make_episode(cfg)
 
 
@@ -121,12 +121,12 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                 stream=sys.stdout, heading_filter: str = "ar", pan: bool = False,
                 reverse: bool = False, settle_iterations: int = 0,
                 still_at_end: float = 0.0, heading_frame: str = "odom",
-                line_of_sight: bool = False, replan_every: int = 5,
+                line_of_sight: bool = False, replan_every: int | None = None,
                 cell: float = 0.1, corroborated_births: bool = True) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     ``replan_every``: frames between full solves of the planner's distance field (refined a
-    few rounds in the frames between); ``cell``: the costmap's cell (m);
+    few rounds in the frames between; None: the scene's default); ``cell``: the costmap's cell (m);
     ``corroborated_births``: RGB-D detections no ceiling camera sees start tracks only beside
     a laser detection (`sims.service.episode.ServiceConfig`).
 
@@ -144,7 +144,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                                None if interest is None else float(interest), float(duration),
                                heading_filter, pan, bool(reverse), int(settle_iterations),
                                float(still_at_end), heading_frame, bool(line_of_sight),
-                               int(replan_every), float(cell), bool(corroborated_births))
+                               None if replan_every is None else int(replan_every),
+                               float(cell), bool(corroborated_births))
     params = ep.make_params(cfg)
     key = jax.random.PRNGKey(seed)
     m, compile_s, run_s = timed_evaluate(episode_fn, params, key, episodes, batch_size,
@@ -164,7 +165,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
              + (f", heading filter {heading_filter}"
                 if experiment == "handover" and heading_filter != "ar" else "")
              + (", RGB-D in the laser's line of sight" if line_of_sight else "")
-             + (f", full replan every {replan_every} frames" if replan_every != 5 else "")
+             + (f", full replan every {cfg.replan_every} frames"
+                if cfg.replan_every != ep.ServiceConfig.replan_every else "")
              + (f", {cell:g} m cells" if cell != 0.1 else "")
              + ("" if corroborated_births else ", uncorroborated RGB-D births"))
     table = metrics_table(m, title, experiment)

@@ -179,7 +179,7 @@ def test_service_approach_options_reach_the_run(monkeypatch):
     assert cli.main(["run", "service", "--experiment", "approach"]) == 0
     assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False,
                           "settle_iterations": 0, "still_at_end": 0.0, "heading_frame": "odom",
-                          "line_of_sight": False, "replan_every": 5, "cell": 0.1,
+                          "line_of_sight": False, "replan_every": None, "cell": 0.1,
                           "corroborated_births": True}
     for bad in (["--settle", "-1"], ["--still-at-end", "90"], ["--replan-every", "0"],
                 ["--cell", "0.01"], ["--births", "some"]):

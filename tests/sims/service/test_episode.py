@@ -323,3 +323,39 @@ def test_rgbd_detections_are_corroborated_by_a_laser_detection_beside_them(dtype
     assert not np.any(np.asarray(one))
     none = ep.corroborated(jnp.zeros((0, 2), dtype), jnp.zeros(0, bool), jnp.zeros(0, np.int32))
     assert none.shape == (0,) and none.dtype == bool
+
+
+def test_the_short_path_gives_the_long_paths_lookahead_point(scene):
+    """The frame extracts `PATH_AHEAD` metres of path, not 48 cells: pure pursuit's lookahead
+    point (0.6 m and 2.0 m) is the same on both, from random cells of the flat to random goals
+    on its static layer plus a few people's lethal discs."""
+    from jaxtrack.control import grid_planner
+
+    config = ep.ServiceConfig(scene)
+    g = ep.grid(config)
+    pg = ep._planner_grid(g)
+    static = ep.static_cost(config)
+    free = np.argwhere(static < 0.3)
+    rng = np.random.default_rng(4)
+    n_short = math.ceil(ep.PATH_AHEAD / config.cell) + 1
+    assert n_short < 48
+    rows, cols = np.mgrid[0:static.shape[0], 0:static.shape[1]]
+    compared = 0
+    for _ in range(6):
+        cost = static.copy()
+        for r, c in free[rng.choice(len(free), 3)]:
+            cost[(rows - r) ** 2 + (cols - c) ** 2 <= 16] = ep._LETHAL_PENALTY
+        start, goal = free[rng.choice(len(free), 2, replace=False)]
+        plan = np.where(np.isfinite(cost), np.minimum(cost, ep._LETHAL_PENALTY), np.inf)
+        dist = grid_planner.distance_field(plan, goal, cell=config.cell)
+        if not np.isfinite(dist[start[0], start[1]]):
+            continue
+        robot = np.asarray(grid_planner.centre_of(pg, jnp.asarray(start))) + rng.normal(0, 0.03, 2)
+        for lookahead in (0.6, 2.0):
+            aims = [grid_planner.lookahead_point(pg, p.cells, p.valid, robot, lookahead)
+                    for p in (grid_planner.extract_path(dist, start, n, cost=plan,
+                                                        cell=config.cell)
+                              for n in (n_short, 48))]
+            np.testing.assert_allclose(aims[0], aims[1], atol=1e-6)
+        compared += 1
+    assert compared >= 3
