@@ -128,9 +128,9 @@ class ServiceConfig:
         field refined after people appeared across the way would lead the robot into them
         until the next full solve. The defaults (a full solve every 2 s, 5 rounds a frame)
         run 1.3x faster than every 0.5 s with 10 rounds, with the same success and rules
-        (docs/service.md, "The planner's schedule"). solve_to_robot: a full solve stops once the robot's cell
-        is exact (``distance_field``'s ``start_cell``), not when the whole flat is; False
-        solves the whole flat (the same path, more rounds).
+        (docs/service.md, "The planner's schedule"). solve_to_robot: a full solve stops once
+        the robot's cell is exact (``distance_field``'s ``start_cell``), not when the whole
+        flat is; False solves the whole flat (the same path, more rounds).
       settle: seconds the robot stands still at the start while its tracks confirm.
       still_at_end: seconds at the end of the episode in which nobody starts a step, so that
         a final pose is judged once the person has stood still that long (a step in the last
