@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
                           "default: the scene's, 20)")
     svc.add_argument("--cell", type=float, default=0.1, metavar="METRES",
                      help="navigation: the costmap's and planner's cell size (0.05-0.5; 0.2 "
-                          "runs about twice as fast)")
+                          "runs about 1.4 times as fast)")
     svc.add_argument("--batch-size", type=int, default=None)
     svc.add_argument("--animate", action="store_true",
                      help="with --out, also write an animation of the first episode")
