@@ -535,11 +535,9 @@ def _project_points(camera, X):
     def row(i):
         return d[..., 0] * R[i, 0] + d[..., 1] * R[i, 1] + d[..., 2] * R[i, 2]
 
-    pc = jnp.stack([row(0), row(1), row(2)], -1)
-    z = pc[..., 2]
+    x, y, z = row(0), row(1), row(2)
     z_safe = jnp.where(z > _NEAR, z, 1.0)
-    uv = jnp.stack([camera.fx * pc[..., 0] / z_safe + camera.cx,
-                    camera.fy * pc[..., 1] / z_safe + camera.cy], -1)
+    uv = jnp.stack([camera.fx * x / z_safe + camera.cx, camera.fy * y / z_safe + camera.cy], -1)
     return uv, z
 
 
