@@ -323,6 +323,11 @@ def test_rgbd_detections_are_corroborated_by_a_laser_detection_beside_them(dtype
     assert not np.any(np.asarray(one))
     none = ep.corroborated(jnp.zeros((0, 2), dtype), jnp.zeros(0, bool), jnp.zeros(0, np.int32))
     assert none.shape == (0,) and none.dtype == bool
+    # a NaN position neither corroborates nor is corroborated, and leaves the other rows alone
+    nan = ep.corroborated(jnp.asarray([[0.0, 0.0], [0.3, 0.0], [np.nan, 0.0], [5.0, 0.0],
+                                       [np.nan, np.nan]], dtype),
+                          jnp.ones(5, bool), jnp.asarray([1, 2, 2, 1, 1]))
+    np.testing.assert_array_equal(np.asarray(nan), [True, False, False, False, False])
 
 
 def test_the_short_path_gives_the_long_paths_lookahead_point(scene):
