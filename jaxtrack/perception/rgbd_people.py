@@ -197,23 +197,30 @@ def _detect(cfg, state, key, points, mask, colours, viewpoint, image, camera, sv
     dtype = points.dtype
     rgb = jnp.zeros((n, 3), dtype) if colours is None else jnp.asarray(colours, dtype)
 
-    grid = voxelise(cfg.grid, points, mask, rgb, capacity=cfg.voxel_capacity)
-    fit = ground_plane.fit_ground_plane(key, grid.points, grid.mask, state.plane,
-                                        num_hypotheses=cfg.num_hypotheses,
-                                        threshold=cfg.ground_threshold, max_tilt=cfg.max_tilt)
-    above = grid.mask & ~fit.inliers & (ground_plane.plane_height(fit.plane, grid.points) > 0)
-    fg = select(grid, above, cfg.foreground_capacity)
-    neighbours = grid_neighbours(cfg.grid, fg, cfg.cluster_tolerance)
-    raw = euclidean_clustering.euclidean_clusters(neighbours, fg.mask,
-                                                  min_size=cfg.min_cluster_size,
-                                                  capacity=cfg.cluster_capacity, symmetric=True)
-    clusters = _merge_and_filter(cfg, fg.points, raw, fit.plane)
-    people = head_subclustering.subcluster_heads(cfg.heads, fg.points, fg.mask,
-                                                 clusters.labels, fit.plane,
-                                                 jnp.asarray(viewpoint, dtype),
-                                                 num_clusters=cfg.cluster_capacity)
-    hist = colour_histograms(fg.colours, fg.counts, people.point_detection,
-                             cfg.heads.max_detections, cfg.histogram_bins)
+    with jax.named_scope("voxel_grid"):
+        grid = voxelise(cfg.grid, points, mask, rgb, capacity=cfg.voxel_capacity)
+    with jax.named_scope("ground_plane"):
+        fit = ground_plane.fit_ground_plane(key, grid.points, grid.mask, state.plane,
+                                            num_hypotheses=cfg.num_hypotheses,
+                                            threshold=cfg.ground_threshold,
+                                            max_tilt=cfg.max_tilt)
+        above = grid.mask & ~fit.inliers & (ground_plane.plane_height(fit.plane, grid.points)
+                                            > 0)
+        fg = select(grid, above, cfg.foreground_capacity)
+    with jax.named_scope("clustering"):
+        neighbours = grid_neighbours(cfg.grid, fg, cfg.cluster_tolerance)
+        raw = euclidean_clustering.euclidean_clusters(neighbours, fg.mask,
+                                                      min_size=cfg.min_cluster_size,
+                                                      capacity=cfg.cluster_capacity,
+                                                      symmetric=True)
+        clusters = _merge_and_filter(cfg, fg.points, raw, fit.plane)
+    with jax.named_scope("heads"):
+        people = head_subclustering.subcluster_heads(cfg.heads, fg.points, fg.mask,
+                                                     clusters.labels, fit.plane,
+                                                     jnp.asarray(viewpoint, dtype),
+                                                     num_clusters=cfg.cluster_capacity)
+        hist = colour_histograms(fg.colours, fg.counts, people.point_detection,
+                                 cfg.heads.max_detections, cfg.histogram_bins)
     H = cfg.heads.max_detections
     boxes = jnp.zeros((H, 4), dtype)
     confidence = people.mask.astype(dtype)
@@ -222,8 +229,10 @@ def _detect(cfg, state, key, points, mask, colours, viewpoint, image, camera, sv
         boxes = hog.person_box(camera, people.head, foot, cfg.hog).astype(dtype)
         boxes = jnp.where(people.mask[:, None], boxes, 0)
     if image is not None and camera is not None and svm is not None:
-        feats = hog.descriptors(image, boxes, cfg.hog)
-        confidence = jnp.where(people.mask, hog.svm_confidence(svm, feats.astype(dtype)), 0)
+        with jax.named_scope("hog"):
+            feats = hog.descriptors(image, boxes, cfg.hog, mask=people.mask)
+            confidence = jnp.where(people.mask, hog.svm_confidence(svm, feats.astype(dtype)),
+                                   0)
     frame = RGBDPeopleFrame(people, hist, confidence, boxes, grid, fit, fg, clusters)
     return RGBDPeopleState(fit.plane), frame
 

@@ -119,6 +119,26 @@ def test_descriptors_are_the_hog_of_each_crop(dtype):
     assert descriptors(image, jnp.zeros((0, 4), dtype)).shape == (0, num_features())
 
 
+def test_masked_descriptors_describe_only_the_masked_boxes():
+    # 7 boxes (not a whole number of the loop's rounds), masks of 0, 3 and all boxes, also
+    # batched over frames whose loops need different numbers of rounds
+    image = jax.random.uniform(jax.random.key(4), (60, 80, 3))
+    corner = jax.random.uniform(jax.random.key(5), (7, 2), minval=-5.0, maxval=40.0)
+    size = jax.random.uniform(jax.random.key(6), (7, 1), minval=8.0, maxval=50.0)
+    boxes = jnp.concatenate([corner, corner + size * jnp.asarray([2.0, 1.0])], -1)
+    boxes = boxes[:, jnp.asarray([0, 1, 2, 3])]
+    full = jax.jit(descriptors)(image, boxes)
+    masks = jnp.asarray([[False] * 7, [True, False, False, True, False, True, False],
+                         [True] * 7])
+    masked = jax.jit(lambda m: descriptors(image, boxes, mask=m))
+    for m in masks:
+        np.testing.assert_allclose(masked(m), jnp.where(m[:, None], full, 0), atol=1e-6)
+    batched = jax.jit(jax.vmap(lambda m: descriptors(image, boxes, mask=m)))(masks)
+    np.testing.assert_allclose(batched, jnp.where(masks[..., None], full, 0), atol=1e-6)
+    with pytest.raises(ValueError, match="mask"):
+        descriptors(image, boxes, mask=jnp.ones(6, bool))
+
+
 def test_bad_input_is_refused():
     with pytest.raises(ValueError, match="image"):
         crop(jnp.zeros((4, 4)), jnp.zeros(4))
