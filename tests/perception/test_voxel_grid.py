@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxtrack.perception.voxel_grid import (GridSpec, grid_neighbours, open3d_lower, select,
+from jaxtrack.perception.voxel_grid import (GridSpec, cell_lookup, grid_neighbours, open3d_lower, select,
                                             voxelise)
 from tests.perception import _clouds
 from tests.perception._open3d import cloud, open3d
@@ -113,7 +113,7 @@ def test_voxel_rows_follow_the_cell_index_for_any_column_height(shape):
         row_of = {c: i for i, c in enumerate(occupied[:capacity])}
         want[inside] = [row_of.get(c, -1) for c in linear]
         np.testing.assert_array_equal(np.asarray(grid.point_voxel), want)
-        lookup = np.asarray(grid.lookup)
+        lookup = np.asarray(cell_lookup(spec, grid))
         assert np.sum(lookup >= 0) == min(capacity, len(occupied))
         np.testing.assert_array_equal(lookup[occupied[:capacity]], np.arange(len(rows)))
 
@@ -153,8 +153,10 @@ def test_select_renumbers_lookup_and_points():
     pv = np.asarray(sub.point_voxel)
     assert (pv >= 0).sum() == np.asarray(grid.counts)[m].sum()
     np.testing.assert_allclose(np.asarray(sub.points)[pv[pv >= 0]][:, 2] > 0.1, True)
-    lk = np.asarray(sub.lookup)
+    lk = np.asarray(cell_lookup(spec, sub))
     assert (lk >= 0).sum() == m.sum()
+    kept_cells = np.ravel_multi_index(tuple(np.asarray(grid.cells)[m].T), spec.shape)
+    np.testing.assert_array_equal(lk[kept_cells], np.arange(m.sum()))
     # Neighbours of the selection equal the full grid's neighbours restricted to it.
     full = np.asarray(grid_neighbours(spec, grid, 0.12, keep=jnp.asarray(keep)))
     part = np.asarray(grid_neighbours(spec, sub, 0.12))
