@@ -73,35 +73,42 @@ def connected_components(neighbours: Array, mask: Array, *, symmetric: bool = Fa
     _checks.check_shape("mask", mask, (v,), "[V] bool")
     mask = jnp.asarray(mask, bool)
     nb = jnp.asarray(neighbours, jnp.int32)
-    ok = (nb >= 0) & (nb < v) & mask[:, None]
-    safe = jnp.where(ok, nb, 0)
-    ok &= mask[safe]
     none = jnp.int32(v)
-    labels0 = jnp.where(mask, jnp.arange(v, dtype=jnp.int32), none)
-
-    def jump(labels):
-        padded = jnp.concatenate([labels, jnp.full(1, none)])
-        return padded[labels]
+    # Each edge's far end, or V (a row of "none" labels) where there is none, laid out [K, V]
+    # so that each round's gather and minimum run along the points (a minimum over the
+    # trailing K ran as a slow reduce-window on a CPU). An edge to a masked-out point needs
+    # no test: that point keeps the label "none", which no minimum picks, and names no one.
+    far = jnp.where((nb >= 0) & (nb < v) & mask[:, None], nb, v).T
+    if not symmetric:   # (but a push would give it a label)
+        far = jnp.where(jnp.concatenate([mask, jnp.zeros(1, bool)])[far], far, v)
+    labels0 = _with_none(jnp.where(mask, jnp.arange(v, dtype=jnp.int32), none))
 
     def body(state):
-        labels, _ = state
-        pulled = jnp.min(jnp.where(ok, labels[safe], none), axis=1, initial=none)
-        new = jnp.minimum(labels, pulled)
+        padded, _ = state                   # [V + 1] labels, and V at row V
+        labels = padded[:v]
+        # (no wrapping of negative indices: added to every round's gather, it is not hoisted)
+        pulled = padded.at[far].get(mode="promise_in_bounds", wrap_negative_indices=False)
+        new = jnp.minimum(labels, jnp.min(pulled, axis=0))
         if not symmetric:
             # Push as well: an edge listed only at i (j's list lacks i) must still lower j.
-            new = jnp.minimum(new, jnp.full(v + 1, none).at[jnp.where(ok, safe, v)].min(
-                jnp.where(ok, labels[:, None], none))[:v])
+            new = jnp.minimum(new, jnp.full(v + 1, none).at[far].min(
+                jnp.broadcast_to(labels[None], far.shape))[:v])
         # Hooking (Shiloach and Vishkin): the point a label names takes the smallest new label
         # among the points that named it, and each point then takes its label's. Labels stay
         # indices of points of the same component, so the fixed point is unchanged; on the
         # RGB-D frames the rounds fall from 6-28 to 3-5.
         new = jnp.minimum(new, _hook(labels, new, v)[:v])
         new = jnp.minimum(new, _hook(labels, new, v)[new])
-        new = jump(jump(new))
-        return new, jnp.any(new != labels)
+        new = _with_none(_with_none(new)[new])[new]      # two jumps, l_i <- l_(l_i)
+        return _with_none(new), jnp.any(new != labels)
 
     labels, _ = lax.while_loop(lambda s: s[1], body, (labels0, jnp.asarray(v > 0)))
-    return labels
+    return labels[:v]
+
+
+def _with_none(labels):
+    """[V + 1] ``labels`` [V] and, at row V, the label V ("none")."""
+    return jnp.concatenate([labels, jnp.full(1, labels.shape[0], labels.dtype)])
 
 
 def _hook(labels, new, v):
