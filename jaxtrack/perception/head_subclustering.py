@@ -216,11 +216,16 @@ def subcluster_heads(config: HeadConfig, points: Array, mask: Array, labels: Arr
 
     # Step 4: points join the nearest kept head of their cluster within the intimate distance.
     if cfg.subcluster:
-        d2 = jnp.sum((ground[:, None, :] - cand_ground[None]) ** 2, -1)  # [V, k]
-        ok = kept[None] & (cand_cluster[None] == lab[:, None]) & member[:, None]
+        # [k, V], one axis at a time, reduced along the heads: XLA's CPU loops vectorise
+        # neither a trailing axis of 3 nor a minimum over a trailing axis of k.
+        d2 = sum((ground[:, a][None] - cand_ground[:, a][:, None]) ** 2 for a in range(3))
+        ok = kept[:, None] & (cand_cluster[:, None] == lab[None]) & member[None]
         d2 = jnp.where(ok, d2, jnp.inf)
-        nearest = jnp.argmin(d2, axis=1)
-        joined = jnp.min(d2, axis=1) < cfg.intimate_distance ** 2
+        nearest, best = jnp.zeros(v, jnp.int32), d2[0]     # argmin as a running minimum
+        for j in range(1, kk):
+            nearer = d2[j] < best
+            nearest, best = jnp.where(nearer, j, nearest), jnp.where(nearer, d2[j], best)
+        joined = best < cfg.intimate_distance ** 2
     else:
         ok = kept[None] & (cand_cluster[None] == lab[:, None]) & member[:, None]
         nearest = jnp.argmax(ok, axis=1)
