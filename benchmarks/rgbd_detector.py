@@ -9,8 +9,11 @@ The clouds are simulated Kinect frames of the rgbd-people scenario (`sims.follow
 
 - **jaxtrack, one frame**: `rgbd_people.detect` (voxel grid, RANSAC ground plane, Euclidean
   clustering, merging, head sub-clustering, histograms), jitted, one frame per call;
-- **jaxtrack, batch**: the same vmapped over ``--batch`` episodes' frames in one call (per
-  frame);
+- **jaxtrack, batch, vmap**: the same vmapped over ``--batch`` episodes' frames in one call
+  (per frame);
+- **jaxtrack, batch, lax.map**: the same batch in one call, the frames one after the other
+  (`jax.lax.map`): on a CPU, vmap's batched gathers and scatters index with (episode, row)
+  pairs, which XLA runs as scalar loops;
 - **+ HOG**: with the HOG + SVM confidence of every detection;
 - **Open3D**: ``voxel_down_sample`` (0.06 m) + ``segment_plane`` (0.06 m, 32 iterations, the
   same number of hypotheses) + ``cluster_dbscan`` (0.12 m, one point) on the same cloud,
@@ -83,6 +86,8 @@ def run(args):
             cfg, state, key, p, m, c, eye, image=im, camera=camera, svm=svm)[1].confidence)
         batched = jax.jit(jax.vmap(lambda p, m, c: rgbd_people.detect(cfg, state, key, p, m, c,
                                                                       eye)[1].people.position))
+        mapped = jax.jit(lambda p, m, c: jax.lax.map(lambda x: rgbd_people.detect(
+            cfg, state, key, *x, eye)[1].people.position, (p, m, c)))
         b = min(args.batch, args.frames)
         clouds = []
         for i in range(args.frames):
@@ -97,27 +102,39 @@ def run(args):
                 rest = v.select_by_index(inl, invert=True)
                 rest.cluster_dbscan(0.12, 1)
 
+        # Each frame's arrays sliced once beforehand, as Open3D's clouds are converted once:
+        # slicing a device array per call is an operation dispatched per call.
+        frames = [(pts[i], ok[i], rgb[i], colour[i]) for i in range(args.frames)]
+
         def jax_one():
-            return [single(pts[i], ok[i], rgb[i]) for i in range(args.frames)]
+            return [single(*f[:3]) for f in frames]
 
         def jax_hog():
-            return [with_hog(pts[i], ok[i], rgb[i], colour[i]) for i in range(args.frames)]
+            return [with_hog(*f) for f in frames]
+
+        batches = [(pts[i:i + b], ok[i:i + b], rgb[i:i + b])
+                   for i in range(0, args.frames - b + 1, b)]
 
         def jax_batch():
-            return [batched(pts[i:i + b], ok[i:i + b], rgb[i:i + b])
-                    for i in range(0, args.frames - b + 1, b)]
+            return [batched(*x) for x in batches]
+
+        def jax_map():
+            return [mapped(*x) for x in batches]
 
         calls = {"open3d": (open3d_pipeline, ()), "one": (jax_one, ()), "hog": (jax_hog, ()),
-                 "batch": (jax_batch, ())}
+                 "batch": (jax_batch, ()), "map": (jax_map, ())}
         res = _common.time_interleaved(calls, repeats=args.repeats, compiled=("one", "hog",
-                                                                              "batch"))
+                                                                              "batch", "map"))
         per = {"open3d": res["open3d"][0].seconds / args.frames,
                "one": res["one"][0].seconds / args.frames,
                "hog": res["hog"][0].seconds / args.frames,
-               "batch": res["batch"][0].seconds / (b * (args.frames // b))}
+               "batch": res["batch"][0].seconds / (b * (args.frames // b)),
+               "map": res["map"][0].seconds / (b * (args.frames // b))}
         voxels = np.mean([len(c.voxel_down_sample(0.06).points) for c in clouds])
         label = f"{width} x {height}"
-        for name, title in (("one", "jaxtrack, one frame"), ("batch", f"jaxtrack, batch of {b}"),
+        for name, title in (("one", "jaxtrack, one frame"),
+                            ("batch", f"jaxtrack, batch of {b}, vmap"),
+                            ("map", f"jaxtrack, batch of {b}, lax.map"),
                             ("hog", "jaxtrack + HOG, one frame"),
                             ("open3d", "Open3D voxel + plane + DBSCAN")):
             rows.append([label, title, f"{int(np.mean(np.sum(np.asarray(ok), 1)))}",
