@@ -201,11 +201,12 @@ def _occupied_cells(spec: GridSpec, col: Array, z: Array, inside: Array,
     cols = spec.shape[0] * spec.shape[1]
     outside = ~inside
     padded = jnp.where(outside, cols * width, col * width + z)
-    occupied = jnp.zeros(cols * width + 1, jnp.float32).at[padded].set(1.0)[:cols * width]
+    occupied = jnp.zeros(cols * width + 1, jnp.uint8).at[padded].set(1)[:cols * width]
     # Packed by a float32 product: its sums of distinct powers of two below 2^24 are exact,
     # and XLA runs it several times faster than an integer sum of shifted bits on a CPU.
     bit = 2.0 ** np.arange(_WORD_BITS, dtype=np.float32)
-    packed = (occupied.reshape(cols * words, _WORD_BITS) @ bit).astype(jnp.uint32)
+    packed = (occupied.reshape(cols * words, _WORD_BITS).astype(jnp.float32) @ bit).astype(
+        jnp.uint32)
     counts = jax.lax.population_count(packed).astype(jnp.int32)
     ends = jnp.cumsum(counts)                                             # inclusive
     first = ends - counts
@@ -312,10 +313,12 @@ def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
     v = grid.mask.shape[0]
     cells = [jnp.where(grid.mask, grid.cells[:, a], 0) + r for a in range(3)]
     base = (cells[0] * shape[1] + cells[1]) * shape[2] + cells[2]
-    lookup = jnp.full(total + 1, -1, jnp.int32).at[jnp.where(grid.mask, base, total)].set(
-        jnp.arange(v, dtype=jnp.int32))
+    # (rows as int16 where they fit: half the memory to fill and gather)
+    index = jnp.int16 if v < 2**15 else jnp.int32
+    lookup = jnp.full(total + 1, -1, index).at[jnp.where(grid.mask, base, total)].set(
+        jnp.arange(v, dtype=index))
     step = (offsets[:, 0] * shape[1] + offsets[:, 1]) * shape[2] + offsets[:, 2]
-    rows = lookup[base[:, None] + step[None]]
+    rows = lookup[base[:, None] + step[None]].astype(jnp.int32)
     coords = [grid.points[:, a] for a in range(3)]
     ok = (rows >= 0) & keep[:, None]
     safe = jnp.maximum(rows, 0)
