@@ -33,6 +33,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxtrack import _checks
+from jaxtrack._gather import take
 
 Array = jax.Array
 
@@ -86,8 +87,9 @@ def connected_components(neighbours: Array, mask: Array, *, symmetric: bool = Fa
     def body(state):
         padded, _ = state                   # [V + 1] labels, and V at row V
         labels = padded[:v]
-        # (no wrapping of negative indices: added to every round's gather, it is not hoisted)
-        pulled = padded.at[far].get(mode="promise_in_bounds", wrap_negative_indices=False)
+        # (`take`: no wrapping of negative indices, added to every round's gather and not
+        # hoisted, and a cheap gather under vmap)
+        pulled = take(padded, far)
         new = jnp.minimum(labels, jnp.min(pulled, axis=0))
         if not symmetric:
             # Push as well: an edge listed only at i (j's list lacks i) must still lower j.

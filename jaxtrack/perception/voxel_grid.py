@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import _checks
+from jaxtrack._gather import put, segment_sum, take
 
 Array = jax.Array
 
@@ -153,12 +154,13 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
     point_voxel = jnp.where(kept, rank, -1)
     seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
 
-    counts = jax.ops.segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
+    # (`segment_sum`, `take` and `put` of `jaxtrack._gather`: cheap under vmap as well)
+    counts = segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
     denom = jnp.maximum(counts, 1).astype(dtype)[:, None]
     # One segment sum of the points and colours side by side: a CPU's scatter costs about the
     # same per row for rows this short (three [N] sums took as long as one of [N, 3] rows).
-    sums = jax.ops.segment_sum(jnp.where(inside[:, None], jnp.concatenate([points, colours], 1),
-                                         0), seg, capacity + 1)[:capacity]
+    sums = segment_sum(jnp.where(inside[:, None], jnp.concatenate([points, colours], 1), 0),
+                       seg, capacity + 1)[:capacity]
     centroids = sums[:, :3] / denom
     mean_colour = sums[:, 3:] / denom
     vmask = cells < total
@@ -201,7 +203,8 @@ def _occupied_cells(spec: GridSpec, col: Array, z: Array, inside: Array,
     cols = spec.shape[0] * spec.shape[1]
     outside = ~inside
     padded = jnp.where(outside, cols * width, col * width + z)
-    occupied = jnp.zeros(cols * width + 1, jnp.uint8).at[padded].set(1)[:cols * width]
+    occupied = put(jnp.zeros(cols * width + 1, jnp.uint8), padded,
+                   jnp.ones_like(padded, jnp.uint8))[:cols * width]
     # Packed by a float32 product: its sums of distinct powers of two below 2^24 are exact,
     # and XLA runs it several times faster than an integer sum of shifted bits on a CPU.
     bit = 2.0 ** np.arange(_WORD_BITS, dtype=np.float32)
@@ -213,7 +216,8 @@ def _occupied_cells(spec: GridSpec, col: Array, z: Array, inside: Array,
     word = jnp.where(outside, 0, col * words + z // _WORD_BITS)
     below = (jnp.left_shift(jnp.uint32(1), (z % _WORD_BITS).astype(jnp.uint32))
              - jnp.uint32(1))
-    rank = first[word] + jax.lax.population_count(packed[word] & below).astype(jnp.int32)
+    rank = take(first, word) + jax.lax.population_count(take(packed, word) & below).astype(
+        jnp.int32)
     # Row r: the word holding the r-th occupied cell, then the bit of that word whose count of
     # set bits below it is r - first.
     r = jnp.arange(capacity, dtype=jnp.int32)
@@ -315,15 +319,16 @@ def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
     base = (cells[0] * shape[1] + cells[1]) * shape[2] + cells[2]
     # (rows as int16 where they fit: half the memory to fill and gather)
     index = jnp.int16 if v < 2**15 else jnp.int32
-    lookup = jnp.full(total + 1, -1, index).at[jnp.where(grid.mask, base, total)].set(
-        jnp.arange(v, dtype=index))
+    lookup = put(jnp.full(total + 1, -1, index), jnp.where(grid.mask, base, total),
+                 jnp.arange(v, dtype=index))
     step = (offsets[:, 0] * shape[1] + offsets[:, 1]) * shape[2] + offsets[:, 2]
-    rows = lookup[base[:, None] + step[None]].astype(jnp.int32)
+    # (`take`: gathers that stay cheap under vmap)
+    rows = take(lookup, base[:, None] + step[None]).astype(jnp.int32)
     coords = [grid.points[:, a] for a in range(3)]
     ok = (rows >= 0) & keep[:, None]
     safe = jnp.maximum(rows, 0)
     if subset:   # (the lookup holds occupied rows only: without a subset they all take part)
-        ok &= keep[safe]
-    d2 = sum((c[safe] - c[:, None]) ** 2 for c in coords)
+        ok &= take(keep, safe)
+    d2 = sum((take(c, safe) - c[:, None]) ** 2 for c in coords)
     ok &= d2 <= radius ** 2
     return jnp.where(ok, rows, -1)
