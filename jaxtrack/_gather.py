@@ -24,7 +24,7 @@ from jax import custom_batching
 
 Array = jax.Array
 
-__all__ = ["take", "segment_sum", "put"]
+__all__ = ["take", "segment_sum", "put", "materialised"]
 
 _INT32_LIMIT = 2**31 - 1
 
@@ -103,3 +103,12 @@ def _put_batched(axis_size, in_batched, table, index, values):
                (index + _flat_offsets(axis_size, size, index)).reshape(-1),
                values.reshape((-1,) + values.shape[2:]))
     return flat.reshape(table.shape), True
+
+
+def materialised(x: Array) -> Array:
+    """``x``, computed once into memory: written by a scatter, which XLA does not fuse into its
+    consumers. Without it, XLA fuses a producer into each consumer and recomputes it there, at
+    every element a gather reads (an optimization_barrier does not help: XLA:CPU removes
+    barriers before fusing)."""
+    n = x.shape[0]
+    return put(jnp.zeros((n + 1,) + x.shape[1:], x.dtype), jnp.arange(n), x)[:n]

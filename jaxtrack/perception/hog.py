@@ -39,6 +39,7 @@ import numpy as np
 from jax import lax
 
 from jaxtrack import _checks
+from jaxtrack._gather import materialised
 
 Array = jax.Array
 
@@ -200,14 +201,7 @@ def _describe(planes: Array, boxes: Array, config: HOGConfig) -> Array:
     # Materialised: XLA otherwise fuses the crop's gathers and interpolation into every
     # gradient of the descriptor, recomputing each window pixel several times (13.1 against
     # 6.7 ms for 16 QVGA boxes on a CPU).
-    return _descriptor(_materialised(windows), config)
-
-
-def _materialised(x: Array) -> Array:
-    """``x``, computed once: a scatter, which XLA does not fuse into its consumers (an
-    optimization_barrier does not stop the fusion: XLA:CPU removes barriers before fusing)."""
-    n = x.shape[0]
-    return jnp.zeros((n + 1,) + x.shape[1:], x.dtype).at[jnp.arange(n)].set(x)[:n]
+    return _descriptor(materialised(windows), config)
 
 
 def _planes(image: Array) -> Array:
@@ -281,7 +275,7 @@ def _descriptor(planes: Array, config: HOGConfig) -> Array:
     # The cells' histograms: one segment sum over all windows, of materialised bins and
     # magnitudes (fused into the scatter's [N, 1] index, the pixels' arithmetic ran as scalar
     # code: 2.7x slower).
-    b, mag = _materialised(b[:, :nr * cs, :nc * cs]), _materialised(mag[:, :nr * cs, :nc * cs])
+    b, mag = materialised(b[:, :nr * cs, :nc * cs]), materialised(mag[:, :nr * cs, :nc * cs])
     cell = (jnp.arange(nr * cs)[:, None] // cs) * nc + jnp.arange(nc * cs)[None] // cs
     seg = ((jnp.arange(B)[:, None, None] * (nr * nc) + cell) * n + b).reshape(-1)
     cells = jax.ops.segment_sum(mag.reshape(-1), seg, B * nr * nc * n).reshape(

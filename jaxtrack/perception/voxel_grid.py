@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxtrack import _checks
-from jaxtrack._gather import put, segment_sum, take
+from jaxtrack._gather import materialised, put, segment_sum, take
 
 Array = jax.Array
 
@@ -148,11 +148,14 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
         c = jnp.floor(jnp.clip(jnp.where(valid, rel, -1.0), -1.0, 2.0**30)).astype(jnp.int32)
         inside &= (c >= 0) & (c < spec.shape[a])
         ijk.append(c)
-    rank, cells = _occupied_cells(spec, ijk[0] * spec.shape[1] + ijk[1], ijk[2], inside,
-                                  capacity)
+    col = ijk[0] * spec.shape[1] + ijk[1]
+    rank = _cell_ranks(spec, col, ijk[2], inside)
     kept = inside & (rank < capacity)
     point_voxel = jnp.where(kept, rank, -1)
     seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
+    # Each row's cell, written by its points (a voxel's points all write the same cell).
+    cells = put(jnp.full(capacity + 1, total, jnp.int32), seg,
+                col * spec.shape[2] + ijk[2])[:capacity]
 
     # (`segment_sum`, `take` and `put` of `jaxtrack._gather`: cheap under vmap as well)
     counts = segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
@@ -175,27 +178,22 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
                      num_dropped=num_dropped.astype(jnp.int32))
 
 
-_WORD_BITS = 24     # cells per packed word of `_occupied_cells` (exact in float32)
+_WORD_BITS = 24     # cells per packed word of `_cell_ranks` (exact in float32)
 
 
-def _occupied_cells(spec: GridSpec, col: Array, z: Array, inside: Array,
-                    capacity: int) -> tuple[Array, Array]:
-    """The occupied cells in cell-index order, as ``jnp.nonzero`` would give them, without a
-    prefix sum over the whole box (XLA's over a few hundred thousand cells took 4.7 of the
-    6.9 ms of a QVGA frame's voxelisation on a CPU).
+def _cell_ranks(spec: GridSpec, col: Array, z: Array, inside: Array) -> Array:
+    """[N] each point's cell's rank among the occupied cells in cell-index order (its voxel's
+    row, as ``jnp.nonzero`` would number the cells), without a prefix sum over the whole box
+    (XLA's over a few hundred thousand cells took 4.7 of the 6.9 ms of a QVGA frame's
+    voxelisation on a CPU); anything for points outside.
 
     Each column of cells along the last axis is stored as 24-bit words, one bit per cell; a
     prefix sum of the words' bit counts (24x fewer entries) gives each word's first rank. A
-    point's rank adds the bits of its word below its cell; a row's cell is found by a binary
-    search of the words' ranks and the position of its bit in its word.
+    point's rank adds the bits of its word below its cell.
 
     Args:
       spec: the grid; col, z: [N] int32 each point's column of cells (i s_1 + j) and cell
-      along it (k); inside: [N] bool points in the grid; capacity: V.
-
-    Returns:
-      ``(rank [N], cells [V])``: each point's voxel row (anything outside), and each row's
-      cell (``num_cells`` for empty rows).
+      along it (k); inside: [N] bool points in the grid.
     """
     s2 = spec.shape[2]
     words = -(-s2 // _WORD_BITS)
@@ -211,27 +209,13 @@ def _occupied_cells(spec: GridSpec, col: Array, z: Array, inside: Array,
     packed = (occupied.reshape(cols * words, _WORD_BITS).astype(jnp.float32) @ bit).astype(
         jnp.uint32)
     counts = jax.lax.population_count(packed).astype(jnp.int32)
-    ends = jnp.cumsum(counts)                                             # inclusive
-    first = ends - counts
+    # (materialised: fused, the prefix sum's last levels were redone at every point's gather)
+    first = materialised(jnp.cumsum(counts) - counts)
     word = jnp.where(outside, 0, col * words + z // _WORD_BITS)
     below = (jnp.left_shift(jnp.uint32(1), (z % _WORD_BITS).astype(jnp.uint32))
              - jnp.uint32(1))
-    rank = take(first, word) + jax.lax.population_count(take(packed, word) & below).astype(
+    return take(first, word) + jax.lax.population_count(take(packed, word) & below).astype(
         jnp.int32)
-    # Row r: the word holding the r-th occupied cell, then the bit of that word whose count of
-    # set bits below it is r - first.
-    r = jnp.arange(capacity, dtype=jnp.int32)
-    w = jnp.searchsorted(ends, r, side="right").astype(jnp.int32)
-    found = w < cols * words
-    w = jnp.minimum(w, cols * words - 1)
-    bits = packed[w][:, None]                                             # [V, 1]
-    pos = jnp.arange(_WORD_BITS, dtype=jnp.uint32)
-    lower = jax.lax.population_count(bits & (jnp.left_shift(jnp.uint32(1), pos) - jnp.uint32(1)))
-    hit = ((jnp.right_shift(bits, pos) & jnp.uint32(1)) == 1) & (
-        lower.astype(jnp.int32) == (r - first[w])[:, None])
-    z_row = (w % words) * _WORD_BITS + jnp.argmax(hit, axis=1).astype(jnp.int32)
-    cells = jnp.where(found, (w // words) * s2 + z_row, spec.num_cells)
-    return rank, cells
 
 
 def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
