@@ -192,7 +192,7 @@ def descriptors(image: Array, boxes: Array, config: HOGConfig = HOGConfig(),
     return jnp.zeros_like(out, shape=(b + 1, out.shape[1])).at[dest].set(out[:b])[:b]
 
 
-_CHUNK = 4      # boxes described per round of `descriptors`' loop
+_CHUNK = 2      # boxes described per round of `descriptors`' loop
 
 
 def _describe(planes: Array, boxes: Array, config: HOGConfig) -> Array:
