@@ -13,8 +13,8 @@ Fixed shapes: the grid is a dense box of ``shape`` cells (a sensor's frustum at 
 hundred thousand cells), and the occupied voxels are compacted, in the order of their cell
 index, into ``capacity`` rows with a mask. A dense box rather than a sort of the cells' keys
 because a scatter into a few hundred thousand cells and one prefix sum are cheaper than sorting
-the 77k points of a QVGA frame, on a CPU as on a GPU, and the box also serves as the
-voxels' neighbour lookup (`grid_neighbours`). Points outside the box, masked or non-finite
+the 77k points of a QVGA frame, on a CPU as on a GPU, and a box of the same cells serves as
+the voxels' neighbour lookup (`grid_neighbours`, `cell_lookup`). Points outside the box, masked or non-finite
 points and the points of voxels beyond the capacity are dropped and counted.
 
 Example:
