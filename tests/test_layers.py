@@ -11,7 +11,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 # Bottom to top; a module may import its own layer and the layers below it.
 LAYERS = (
-    ("_checks", "angles", "geometry"),
+    ("_checks", "_gather", "angles", "geometry"),
     ("metrics",),
     ("models",),
     ("filters",),
