@@ -360,7 +360,7 @@ def make_detections(positions, capacity: int, sensor=None, confidence=None, feat
         pos = jnp.zeros((0, 2))
     sensor = jnp.zeros(n, jnp.int32) if sensor is None else jnp.asarray(sensor, jnp.int32)
     zs, mask, sens = association.pad_detections(pos, capacity, sensor)
-    conf = jnp.ones(n) if confidence is None else jnp.asarray(confidence)
+    conf = jnp.ones(n, zs.dtype) if confidence is None else jnp.asarray(confidence, zs.dtype)
     _checks.check_shape("confidence", conf, (n,), "one confidence per detection")
     conf = jnp.zeros(capacity, zs.dtype).at[:n].set(conf)
     if features is None:
