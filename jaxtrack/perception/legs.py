@@ -548,8 +548,7 @@ def kasa_circle(mask: Array, n: Array, moments: Array) -> tuple[Array, Array, Ar
 def _pair(xy, mask, params, P, prev_legs, compatible=None):
     S = xy.shape[0]
     dtype = xy.dtype
-    diff = xy[:, None] - xy[None]
-    dist = jnp.sqrt(jnp.sum(diff * diff, -1) + jnp.eye(S, dtype=dtype))
+    dist = jnp.sqrt(_pairwise_sq(xy, xy) + jnp.eye(S, dtype=dtype))
     allowed = mask[:, None] & mask[None] & ~jnp.eye(S, dtype=bool) & (dist <= params.pair_distance)
     if prev_legs is not None:
         allowed = allowed & _motion_compatible(xy, mask, prev_legs, params)
@@ -600,8 +599,7 @@ def _pair(xy, mask, params, P, prev_legs, compatible=None):
 
 def _motion_compatible(xy, mask, prev_legs, params):
     prev_xy, prev_mask = jnp.asarray(prev_legs[0], xy.dtype), jnp.asarray(prev_legs[1], bool)
-    d = xy[:, None] - prev_xy[None]
-    dist = jnp.sqrt(jnp.sum(d * d, -1) + 1e-30)
+    dist = jnp.sqrt(_pairwise_sq(xy, prev_xy) + 1e-30)
     dist = jnp.where(prev_mask[None], dist, jnp.inf)
     # Nearest previous leg (first on ties, as argmin), selected by a one-hot row.
     best = jnp.min(dist, -1)
@@ -609,12 +607,21 @@ def _motion_compatible(xy, mask, prev_legs, params):
     nearest = jnp.min(jnp.where(dist == best[:, None], prev_idx[None], prev_xy.shape[0]), -1)
     onehot = prev_idx[None] == nearest[:, None]
     known = mask & (best <= params.motion_gate)
-    disp = xy - jnp.sum(jnp.where(onehot[:, :, None], prev_xy[None], 0.0), 1)
-    speed = jnp.sqrt(jnp.sum(disp * disp, -1) + 1e-30)
+    disp = [xy[:, a] - jnp.sum(jnp.where(onehot, prev_xy[None, :, a], 0.0), 1) for a in (0, 1)]
+    speed = jnp.sqrt(disp[0] * disp[0] + disp[1] * disp[1] + 1e-30)
     moving = known & (speed > params.min_motion)
-    unit = disp / speed[:, None]
-    cos = unit @ unit.T
+    ux, uy = disp[0] / speed, disp[1] / speed
+    cos = ux[:, None] * ux[None] + uy[:, None] * uy[None]
     return ~(moving[:, None] & moving[None]) | (cos >= jnp.cos(params.max_motion_angle))
+
+
+def _pairwise_sq(a, b):
+    """[N, M] squared distances between the points of ``a`` [N, 2] and ``b`` [M, 2], one axis at
+    a time: XLA:CPU runs a sum over a trailing axis of 2 as a scalar loop (the [S, S, 2] form
+    took 5 % of a service-scene frame)."""
+    dx = a[:, 0][:, None] - b[:, 0][None]
+    dy = a[:, 1][:, None] - b[:, 1][None]
+    return dx * dx + dy * dy
 
 
 def _check_scan(ranges, angles):
