@@ -14,8 +14,9 @@ hundred thousand cells), and the occupied voxels are compacted, in the order of 
 index, into ``capacity`` rows with a mask. A dense box rather than a sort of the cells' keys
 because a scatter into a few hundred thousand cells and one prefix sum are cheaper than sorting
 the 77k points of a QVGA frame, on a CPU as on a GPU, and a box of the same cells serves as
-the voxels' neighbour lookup (`grid_neighbours`, `cell_lookup`). Points outside the box, masked or non-finite
-points and the points of voxels beyond the capacity are dropped and counted.
+the voxels' neighbour lookup (`grid_neighbours`, `cell_lookup`). Points outside the box,
+masked or non-finite points and the points of voxels beyond the capacity are dropped and
+counted.
 
 Example:
   >>> spec = GridSpec(size=0.06, lower=(-3.0, -3.0, -0.5), shape=(100, 100, 50))
