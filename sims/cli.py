@@ -158,12 +158,12 @@ def main(argv: list[str] | None = None) -> int:
     svc.add_argument("--interest", default="0.5",
                      help="approach: the person interest (0-1), or 'estimated'")
     svc.add_argument("--heading-filter", choices=("ar", "windowed", "sustained"),
-                     default="ar",
-                     help="approach: seed 002's AR heading filter on the velocity, the "
-                          "windowed one that holds the heading through short steps, or the "
-                          "sustained one that also holds it through steps in a row; "
+                     default=None,
+                     help="approach: seed 002's AR heading filter on the velocity (default), "
+                          "the windowed one that holds the heading through short steps, or "
+                          "the sustained one that also holds it through steps in a row; "
                           "handover: the waiting person's heading from their track's velocity "
-                          "(ar) or from that filter on its positions")
+                          "(ar) or from that filter on its positions (default: sustained)")
     svc.add_argument("--pan", action="store_true",
                      help="approach: the RGB-D camera on its pan unit, turned to the person")
     svc.add_argument("--reverse", action="store_true",

@@ -114,18 +114,28 @@ def _scene():
     return ep.build_scene()
 
 
+def default_heading_filter(experiment: str) -> str:
+    """The heading filter `run_service` uses when none is given: "sustained" for the hand-over,
+    whose rule needs it (95.7 % of 256 episodes held it with "ar", 99.6 % with "sustained"),
+    seed 002's "ar" otherwise."""
+    return "sustained" if experiment == "handover" else "ar"
+
+
 def run_service(experiment: str = "avoid", episodes: int = 256, duration: float = 60.0,
                 perception: str = "all", compare_sensors: bool = False,
                 interest: float | None = 0.5, out: Path | None = None, seed: int = 0,
                 batch_size: int | None = None, animate: bool = False, progress: bool = True,
-                stream=sys.stdout, heading_filter: str = "ar", pan: bool = False,
+                stream=sys.stdout, heading_filter: str | None = None, pan: bool = False,
                 reverse: bool = False, settle_iterations: int = 0,
                 still_at_end: float = 0.0, heading_frame: str = "odom",
                 line_of_sight: bool = False, replan_every: int | None = None,
                 cell: float = 0.1, corroborated_births: bool = True) -> dict:
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
-    ``replan_every``: frames between full solves of the planner's distance field (refined a
+    ``heading_filter``: the approach's heading filter, and the hand-over's source of the
+    waiting person's heading (`sims.service.episode.ServiceConfig`); None: seed 002's "ar"
+    filter, except for the hand-over, whose rule needs the "sustained" one (on 256 episodes
+    it held in 95.7 % with "ar"). ``replan_every``: frames between full solves of the planner's distance field (refined a
     few rounds in the frames between; None: the scene's default); ``cell``: the costmap's cell (m);
     ``corroborated_births``: RGB-D detections no ceiling camera sees start tracks only beside
     a laser detection (`sims.service.episode.ServiceConfig`).
@@ -140,6 +150,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     from sims._runs import timed_evaluate
     from sims.service import episode as ep
 
+    if heading_filter is None:
+        heading_filter = default_heading_filter(experiment)
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration),
                                heading_filter, pan, bool(reverse), int(settle_iterations),

@@ -177,7 +177,7 @@ def test_service_approach_options_reach_the_run(monkeypatch):
                           "line_of_sight": True, "replan_every": 10, "cell": 0.2,
                           "corroborated_births": False}
     assert cli.main(["run", "service", "--experiment", "approach"]) == 0
-    assert seen["kw"] == {"heading_filter": "ar", "pan": False, "reverse": False,
+    assert seen["kw"] == {"heading_filter": None, "pan": False, "reverse": False,
                           "settle_iterations": 0, "still_at_end": 0.0, "heading_frame": "odom",
                           "line_of_sight": False, "replan_every": None, "cell": 0.1,
                           "corroborated_births": True}

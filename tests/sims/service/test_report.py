@@ -6,7 +6,7 @@ import io
 import numpy as np
 
 from sims.service import episode as ep
-from sims.service.report import run_service
+from sims.service.report import default_heading_filter, run_service
 
 
 def test_run_service_approach_with_the_true_person_ends_in_seed_002s_pose(tmp_path):
@@ -26,3 +26,10 @@ def test_run_service_approach_with_the_true_person_ends_in_seed_002s_pose(tmp_pa
     assert (tmp_path / "top_view.png").stat().st_size > 0
     with np.load(tmp_path / "metrics.npz") as saved:
         np.testing.assert_array_equal(saved["success"], m["success"])
+
+
+def test_the_hand_over_defaults_to_the_sustained_heading_filter():
+    # (its rule needs it; the approach keeps seed 002's AR filter)
+    assert default_heading_filter("handover") == "sustained"
+    for experiment in ("approach", "avoid", "overtake", "tv"):
+        assert default_heading_filter(experiment) == "ar"
