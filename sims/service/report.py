@@ -89,7 +89,7 @@ def paired_difference(a, b, z: float = 1.96):
 
 
 @functools.lru_cache(maxsize=16)
-def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter="ar",
+def _episode(experiment, perception, compare_sensors, interest, duration, heading_filter=None,
              pan=False, reverse=False, settle_iterations=0, still_at_end=0.0,
              heading_frame="odom", line_of_sight=False, replan_every=None, cell=0.1,
              corroborated_births=True):
@@ -114,13 +114,6 @@ def _scene():
     return ep.build_scene()
 
 
-def default_heading_filter(experiment: str) -> str:
-    """The heading filter `run_service` uses when none is given: "sustained" for the hand-over,
-    whose rule needs it (95.7 % of 256 episodes held it with "ar", 99.6 % with "sustained"),
-    seed 002's "ar" otherwise."""
-    return "sustained" if experiment == "handover" else "ar"
-
-
 def run_service(experiment: str = "avoid", episodes: int = 256, duration: float = 60.0,
                 perception: str = "all", compare_sensors: bool = False,
                 interest: float | None = 0.5, out: Path | None = None, seed: int = 0,
@@ -133,9 +126,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     """Run ``episodes`` closed-loop episodes of ``experiment``, print the table, write plots.
 
     ``heading_filter``: the approach's heading filter, and the hand-over's source of the
-    waiting person's heading (`sims.service.episode.ServiceConfig`); None: seed 002's "ar"
-    filter, except for the hand-over, whose rule needs the "sustained" one (on 256 episodes
-    it held in 95.7 % with "ar"). ``replan_every``: frames between full solves of the planner's distance field (refined a
+    waiting person's heading; None: the scene's default for the experiment
+    (`sims.service.episode.ServiceConfig`). ``replan_every``: frames between full solves of the planner's distance field (refined a
     few rounds in the frames between; None: the scene's default); ``cell``: the costmap's cell (m);
     ``corroborated_births``: RGB-D detections no ceiling camera sees start tracks only beside
     a laser detection (`sims.service.episode.ServiceConfig`).
@@ -150,8 +142,6 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     from sims._runs import timed_evaluate
     from sims.service import episode as ep
 
-    if heading_filter is None:
-        heading_filter = default_heading_filter(experiment)
     cfg, episode_fn = _episode(experiment, perception, bool(compare_sensors),
                                None if interest is None else float(interest), float(duration),
                                heading_filter, pan, bool(reverse), int(settle_iterations),
@@ -165,7 +155,7 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
     pi = "estimated" if interest is None else f"{float(interest):g}"
     title = (f"service robot, experiment {experiment}: {episodes} episodes x {duration:.0f} s, "
              f"perception {perception}" + (f", person interest {pi}, heading filter "
-                                           f"{heading_filter}" + (", pan unit" if pan else "")
+                                           f"{cfg.heading_filter}" + (", pan unit" if pan else "")
                                            + (", reversing" if reverse else "")
                                            + (f", to the settled point ({settle_iterations} "
                                               "steps)" if settle_iterations else "")
@@ -174,8 +164,8 @@ def run_service(experiment: str = "avoid", episodes: int = 256, duration: float 
                                            + (", heading in the map frame"
                                               if heading_frame == "map" else "")
                                            if experiment == "approach" else "")
-             + (f", heading filter {heading_filter}"
-                if experiment == "handover" and heading_filter != "ar" else "")
+             + (f", heading filter {cfg.heading_filter}"
+                if experiment == "handover" and cfg.heading_filter != "ar" else "")
              + (", RGB-D in the laser's line of sight" if line_of_sight else "")
              + (f", full replan every {cfg.replan_every} frames"
                 if cfg.replan_every != ep.ServiceConfig.replan_every else "")

@@ -6,7 +6,7 @@ import io
 import numpy as np
 
 from sims.service import episode as ep
-from sims.service.report import default_heading_filter, run_service
+from sims.service.report import run_service
 
 
 def test_run_service_approach_with_the_true_person_ends_in_seed_002s_pose(tmp_path):
@@ -29,7 +29,10 @@ def test_run_service_approach_with_the_true_person_ends_in_seed_002s_pose(tmp_pa
 
 
 def test_the_hand_over_defaults_to_the_sustained_heading_filter():
-    # (its rule needs it; the approach keeps seed 002's AR filter)
-    assert default_heading_filter("handover") == "sustained"
+    # (its rule needs it; the other experiments keep seed 002's AR filter; explicit choices stay)
+    scene = ep.build_scene()
+    assert ep.ServiceConfig(scene, experiment="handover").heading_filter == "sustained"
     for experiment in ("approach", "avoid", "overtake", "tv"):
-        assert default_heading_filter(experiment) == "ar"
+        assert ep.ServiceConfig(scene, experiment=experiment).heading_filter == "ar"
+    assert ep.ServiceConfig(scene, experiment="handover", heading_filter="ar").heading_filter \
+        == "ar"
