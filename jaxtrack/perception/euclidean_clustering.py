@@ -80,7 +80,7 @@ def connected_components(neighbours: Array, mask: Array, *, symmetric: bool = Fa
     # trailing K ran as a slow reduce-window on a CPU). An edge to a masked-out point needs
     # no test: that point keeps the label "none", which no minimum picks, and names no one.
     far = jnp.where((nb >= 0) & (nb < v) & mask[:, None], nb, v).T
-    if not symmetric:   # (but a push would give it a label)
+    if not symmetric:   # (there a push would give the masked-out point a label: drop them)
         far = jnp.where(jnp.concatenate([mask, jnp.zeros(1, bool)])[far], far, v)
     labels0 = _with_none(jnp.where(mask, jnp.arange(v, dtype=jnp.int32), none))
 

@@ -253,9 +253,9 @@ def select(grid: VoxelGrid, keep: Array, capacity: int) -> VoxelGrid:
 def cell_lookup(spec: GridSpec, grid: VoxelGrid) -> Array:
     """[num_cells] int32 the voxel row of each cell of the grid, -1 for cells without one.
 
-    Built on demand rather than kept in `VoxelGrid`: filling a frustum's few hundred thousand
-    cells costs a detector frame more than its ground plane (`grid_neighbours` builds the
-    padded box it needs itself).
+    Built on demand rather than kept in `VoxelGrid`: the detector never reads it, and filling
+    and renumbering a frustum's few hundred thousand cells in every frame is not free
+    (`grid_neighbours` builds the padded box it needs itself).
 
     Example:
       >>> row = cell_lookup(spec, grid)[np.ravel_multi_index(ijk, spec.shape)]
