@@ -119,8 +119,9 @@ class TrackerConfig:
         detected position. "position_velocity" (seed 001, section IV-B: "the Mahalanobis
         distance of the detection position and estimated velocity from the predicted state"):
         of the position and of the velocity it implies since the track's last estimate,
-        :math:`(z - p_{t-1}) / \Delta t`, gated with 4 degrees of freedom (see `hypothesise`).
-        Only with ``association="gnn"``.
+        :math:`(z - p_{t-1}) / \Delta t`, gated with 4 degrees of freedom (see `hypothesise`;
+        over one frame it adds no information to the position's, see
+        `_position_velocity_d2`). Only with ``association="gnn"``.
       distance: how the GNN cost weighs it: "squared" (:math:`\gamma d^2`) or "mahalanobis"
         (:math:`\gamma d`, seed 001's eq. 2 writes the distance, not its square).
       sensor_update: how "jpda" and "nn_jpda" use a scan of several sensors. "joint": one
@@ -715,8 +716,16 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
 def _position_velocity_d2(previous, predicted, zs, R, dt):
     r"""[K, M] squared Mahalanobis distance of :math:`y = (z - \hat p,\ (z - p_{t-1}) / \Delta t
     - \hat v)` under :math:`S = \hat P + \mathrm{diag}(R, 2 R / \Delta t^2)`: the velocity
-    measured by two positions has twice a position's noise over :math:`\Delta t^2` (open_ptrack,
-    seed 001's implementation, measures the velocity the same way)."""
+    measured by two positions has twice a position's noise over :math:`\Delta t^2`.
+
+    Measured over one frame, the velocity term adds no information: with a constant-velocity
+    prediction, :math:`\hat p = p_{t-1} + \hat v \Delta t`, so its innovation is the
+    position's divided by :math:`\Delta t`. It only re-weights the position's distance and
+    widens the gate (4 degrees of freedom for a form of rank 2). open_ptrack, seed 001's
+    implementation, measures the velocity from the track's filtered position about 1 s earlier
+    (no earlier than its first detection, no later than its last), which the one-frame
+    innovation does not contain; that needs a history of each track's positions, which
+    `Tracks` does not keep."""
     dt = jnp.maximum(jnp.asarray(dt, zs.dtype), 1e-6)
     y_pos = zs[None, :, :] - predicted.mean[:, None, :2]                     # [K, M, 2]
     y_vel = (zs[None, :, :] - previous[:, None, :]) / dt - predicted.mean[:, None, 2:]
