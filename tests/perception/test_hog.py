@@ -137,6 +137,12 @@ def test_masked_descriptors_describe_only_the_masked_boxes():
     np.testing.assert_allclose(batched, jnp.where(masks[..., None], full, 0), atol=1e-6)
     with pytest.raises(ValueError, match="mask"):
         descriptors(image, boxes, mask=jnp.ones(6, bool))
+    # a masked-out NaN box is not described and leaves the others alone; no boxes, no rows
+    nan_boxes = boxes.at[2].set(jnp.nan)
+    np.testing.assert_allclose(masked(masks[1]), jax.jit(lambda m: descriptors(
+        image, nan_boxes, mask=m))(masks[1]), atol=0)
+    assert descriptors(image, jnp.zeros((0, 4)), mask=jnp.zeros(0, bool)).shape == (
+        0, num_features())
 
 
 def test_bad_input_is_refused():

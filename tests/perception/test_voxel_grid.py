@@ -122,6 +122,8 @@ def test_empty_cloud_is_a_valid_input():
     grid = voxelise(GridSpec(), jnp.zeros((0, 3)), capacity=8)
     assert not bool(grid.mask.any()) and int(grid.num_dropped) == 0
     assert grid.point_voxel.shape == (0,)
+    lookup = cell_lookup(GridSpec(), grid)
+    assert lookup.shape == (GridSpec().num_cells,) and bool(jnp.all(lookup == -1))
 
 
 def test_neighbours_are_exactly_the_centroids_within_the_radius():
