@@ -39,7 +39,7 @@ import numpy as np
 from jax import lax
 
 from jaxtrack import _checks
-from jaxtrack._gather import materialised
+from jaxtrack._gather import materialised, put
 
 Array = jax.Array
 
@@ -189,7 +189,7 @@ def descriptors(image: Array, boxes: Array, config: HOGConfig = HOGConfig(),
     out = jnp.zeros((chunks * k, num_features(config)), planes.dtype)
     _, out = lax.while_loop(lambda s: s[0] * k < count, body, (jnp.int32(0), out))
     dest = jnp.where(jnp.arange(b) < count, order[:b], b)
-    return jnp.zeros_like(out, shape=(b + 1, out.shape[1])).at[dest].set(out[:b])[:b]
+    return put(jnp.zeros_like(out, shape=(b + 1, out.shape[1])), dest, out[:b])[:b]
 
 
 _CHUNK = 2      # boxes described per round of `descriptors`' loop

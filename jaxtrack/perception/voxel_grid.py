@@ -264,8 +264,8 @@ def cell_lookup(spec: GridSpec, grid: VoxelGrid) -> Array:
     s1, s2 = spec.shape[1], spec.shape[2]
     linear = (grid.cells[:, 0] * s1 + grid.cells[:, 1]) * s2 + grid.cells[:, 2]
     rows = jnp.arange(grid.mask.shape[0], dtype=jnp.int32)
-    return jnp.full(total + 1, -1, jnp.int32).at[jnp.where(grid.mask, linear, total)].set(
-        rows)[:total]
+    return put(jnp.full(total + 1, -1, jnp.int32), jnp.where(grid.mask, linear, total),
+               rows)[:total]
 
 
 def grid_neighbours(spec: GridSpec, grid: VoxelGrid, radius: float,
