@@ -226,7 +226,8 @@ def tracker_params(dt: float, *, capacity: int = 12, appearance: bool = True,
                    confidence: bool = True, histogram_bins: int = 4,
                    dtype=jnp.float32) -> tracking.TrackerParams:
     """Seed 001's tracker (`sims.following.crowd.Pipeline().tracker`) at the frame period
-    ``dt`` (s): GNN, UKF, the Mahalanobis distance of position and velocity; with
+    ``dt`` (s): GNN, UKF, the Mahalanobis distance of position and of the velocity over about
+    1 s (``velocity_window`` = round(1 / dt) frames, open_ptrack's baseline); with
     ``appearance``, the colour classifier's cost term over ``histogram_bins`` ^ 3 histograms;
     with ``confidence``, the HOG confidence's cost term and the 0.5 birth threshold.
 
@@ -237,7 +238,7 @@ def tracker_params(dt: float, *, capacity: int = 12, appearance: bool = True,
         capacity=int(capacity), association="gnn", filter="ukf", motion_term="position_velocity",
         distance="mahalanobis", num_features=histogram_bins ** 3 if appearance else 0,
         confirm_hits=3, confirm_window=5, max_misses=10, max_tentative_misses=2,
-        merge_distance=0.3, births_in_gates=True)
+        merge_distance=0.3, births_in_gates=True, velocity_window=max(1, round(1.0 / dt)))
     return tracking.TrackerParams.create(
         tc, dt=dt, q=1.0, r_std=(0.15,), init_speed_std=1.0, gamma=1.0,
         alpha=1.0 if appearance else 0.0, beta=2.0 if confidence else 0.0,

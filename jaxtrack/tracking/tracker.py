@@ -118,10 +118,17 @@ class TrackerConfig:
       motion_term: the Mahalanobis distance of the GNN cost and gate. "position": of the
         detected position. "position_velocity" (seed 001, section IV-B: "the Mahalanobis
         distance of the detection position and estimated velocity from the predicted state"):
-        of the position and of the velocity it implies since the track's last estimate,
-        :math:`(z - p_{t-1}) / \Delta t`, gated with 4 degrees of freedom (see `hypothesise`;
-        over one frame it adds no information to the position's, see
-        `_position_velocity_d2`). Only with ``association="gnn"``.
+        of the position and of the velocity it implies over about ``velocity_window`` scans,
+        :math:`(z - p_{t-L}) / (L \Delta t)` from the track's position L scans earlier, gated
+        with 4 degrees of freedom; the assigned track is updated with both (seed 001's
+        implementation, open_ptrack; see `_position_velocity_d2`). Only with
+        ``association="gnn"``.
+      velocity_window: L, in scans, of "position_velocity" (open_ptrack: 1 s, so 10 at
+        10 Hz); the baseline is never older than the track's first scan or younger than its
+        last detection, and never longer than 2 L. Each track keeps its last 2 L - 1 positions
+        (``Tracks.trail``).
+      velocity_noise_ratio: the velocity measurement's noise variance over the position's, per
+        axis (open_ptrack: 16, in (m/s)^2 per m^2).
       distance: how the GNN cost weighs it: "squared" (:math:`\gamma d^2`) or "mahalanobis"
         (:math:`\gamma d`, seed 001's eq. 2 writes the distance, not its square).
       sensor_update: how "jpda" and "nn_jpda" use a scan of several sensors. "joint": one
@@ -150,6 +157,8 @@ class TrackerConfig:
     tentative_outside_confirmed: bool = False
     tentative_from_births: bool = False
     motion_term: str = "position"
+    velocity_window: int = 10
+    velocity_noise_ratio: float = 16.0
     distance: str = "squared"
     sensor_update: str = "joint"
 
@@ -172,6 +181,12 @@ class TrackerConfig:
                              'JPDA likelihoods are those of the position)')
         if self.capacity < 1:
             raise ValueError(f"capacity must be >= 1; got {self.capacity}")
+        if not (isinstance(self.velocity_window, int) and self.velocity_window >= 1):
+            raise ValueError(f"velocity_window must be an int >= 1 (scans); got "
+                             f"{self.velocity_window!r}")
+        if not (np.isfinite(self.velocity_noise_ratio) and self.velocity_noise_ratio > 0):
+            raise ValueError(f"velocity_noise_ratio must be finite and > 0; got "
+                             f"{self.velocity_noise_ratio}")
         if not 1 <= self.confirm_hits <= self.confirm_window <= 30:
             raise ValueError("need 1 <= confirm_hits <= confirm_window <= 30")
         if self.max_misses < 1 or self.max_tentative_misses < 1:
@@ -183,6 +198,12 @@ class TrackerConfig:
     def num_modes(self) -> int:
         """Motion modes per track in ``Tracks.modes``: 2 for "imm", 0 for "cv"."""
         return 2 if self.motion == "imm" else 0
+
+    @property
+    def trail_length(self) -> int:
+        """Earlier positions per track in ``Tracks.trail``: 2 ``velocity_window`` - 1 for
+        ``motion_term="position_velocity"``, 0 otherwise."""
+        return 2 * self.velocity_window - 1 if self.motion_term == "position_velocity" else 0
 
 
 jax.tree_util.register_static(TrackerConfig)
@@ -314,6 +335,10 @@ class Tracks(NamedTuple):
         combined (moment-matched) estimate. A track of age 0 (just born, or placed by hand
         with ``_replace`` as `jaxtrack.tracking.user.multi_target` places its user) starts its
         modes from ``mean`` / ``cov`` in `predict_modes`.
+      trail: [K, T, 2] the track's positions (``mean[:2]`` after each scan) before the last
+        scan, newest first: ``trail[:, i]`` is that of i + 1 scans before ``mean``; a new track
+        fills it with its first position. T = ``config.trail_length`` (0 unless
+        ``motion_term="position_velocity"``, which reads it).
     """
 
     mean: Array
@@ -329,6 +354,7 @@ class Tracks(NamedTuple):
     next_id: Array
     num_dropped: Array
     modes: imm.IMMState
+    trail: Array
 
 
 class Detections(NamedTuple):
@@ -387,7 +413,7 @@ def init(config: TrackerConfig = TrackerConfig(), dtype=jnp.float32) -> Tracks:
     return Tracks(jnp.zeros((K, 4), dtype), jnp.tile(jnp.eye(4, dtype=dtype), (K, 1, 1)),
                   jnp.full(K, -1, jnp.int32), zi, zi, zi, zi, zi, jnp.zeros(K, dtype),
                   appearance.init(K, config.num_features, dtype), jnp.int32(0), jnp.int32(0),
-                  modes)
+                  modes, jnp.zeros((K, config.trail_length, 2), dtype))
 
 
 def step(state: Tracks, detections: Detections, params: TrackerParams) -> Tracks:
@@ -477,6 +503,9 @@ class Hypotheses(NamedTuple):
       allowed: [K, M] bools, the pairs the association may use at all (``gated`` is within
         them): all but a tentative track's with a detection in a confirmed track's gate
         (``tentative_outside_confirmed``); None: all.
+      velocity: ``motion_term="position_velocity"``: [K, M, 2] the velocity each detection
+        implies for each track over its baseline (`_position_velocity_d2`), which the GNN
+        update also measures; None otherwise.
     """
 
     predicted: Gaussian
@@ -493,6 +522,7 @@ class Hypotheses(NamedTuple):
     modes: imm.IMMState | None = None
     motion_d2: Array | None = None
     allowed: Array | None = None
+    velocity: Array | None = None
 
 
 class Association(NamedTuple):
@@ -683,8 +713,12 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
     sensor = jnp.clip(detections.sensor, 0, R.shape[0] - 1)
     inn = association.innovations(predicted.mean, predicted.cov, zs, _position(dtype), R,
                                   sensor=sensor, track_mask=live, meas_mask=mask)
+    velocity = None
     if cfg.motion_term == "position_velocity":
-        d2 = _position_velocity_d2(state.mean[:, :2], predicted, zs, R[sensor], params.dt)
+        past, span = _baseline(state, cfg)
+        dt = jnp.maximum(jnp.asarray(params.dt, dtype), 1e-6)
+        velocity = (zs[None, :, :] - past[:, None, :]) / (span.astype(dtype) * dt)[:, None, None]
+        d2 = _position_velocity_d2(predicted, zs, velocity, R[sensor], cfg.velocity_noise_ratio)
         d2 = jnp.where(live[:, None] & mask[None, :], d2, jnp.inf)
         gated = association.gate(d2, 4, params.gate_prob, live, mask)
     else:
@@ -710,35 +744,54 @@ def hypothesise(state: Tracks, predicted: Gaussian, detections: Detections,
         conf_app = jnp.zeros((K, M), dtype)
     modes = _predict_modes(state, params) if cfg.motion == "imm" else None
     return Hypotheses(predicted, live, zs, mask, sensor, R, inn, gated, conf_app,
-                      detections.confidence, features, modes, d2, allowed)
+                      detections.confidence, features, modes, d2, allowed, velocity)
 
 
-def _position_velocity_d2(previous, predicted, zs, R, dt):
-    r"""[K, M] squared Mahalanobis distance of :math:`y = (z - \hat p,\ (z - p_{t-1}) / \Delta t
-    - \hat v)` under :math:`S = \hat P + \mathrm{diag}(R, 2 R / \Delta t^2)`: the velocity
-    measured by two positions has twice a position's noise over :math:`\Delta t^2`.
+def _baseline(state, cfg):
+    r"""Each track's position at the start of its velocity baseline, [K, 2], and the
+    baseline's length L_k in scans, [K] int32.
 
-    Measured over one frame, the velocity term adds no information: with a constant-velocity
-    prediction, :math:`\hat p = p_{t-1} + \hat v \Delta t`, so its innovation is the
-    position's divided by :math:`\Delta t`. It only re-weights the position's distance and
-    widens the gate (4 degrees of freedom for a form of rank 2). open_ptrack, seed 001's
-    implementation, measures the velocity from the track's filtered position about 1 s earlier
-    (no earlier than its first detection, no later than its last), which the one-frame
-    innovation does not contain; that needs a history of each track's positions, which
-    `Tracks` does not keep."""
-    dt = jnp.maximum(jnp.asarray(dt, zs.dtype), 1e-6)
+    open_ptrack's rule (``Track::getMahalanobisDistance``), in scans: the baseline starts
+    ``velocity_window`` scans ago, but no earlier than the track's first scan (``age + 1``
+    scans ago) and no later than its last detection (``misses + 1`` ago), and never more
+    than 2 ``velocity_window`` scans ago. The position there is the track's estimate after
+    that scan: filtered when it was detected, predicted when it was not."""
+    window = cfg.velocity_window
+    span = jnp.maximum(jnp.minimum(window, state.age + 1), state.misses + 1)
+    span = jnp.clip(span, 1, 2 * window)
+    earlier = jnp.concatenate([state.mean[:, None, :2], state.trail], 1)    # [K, 2 L, 2]
+    past = jnp.take_along_axis(earlier, (span - 1)[:, None, None], 1)[:, 0]
+    return past, span
+
+
+def _position_velocity_d2(predicted, zs, velocity, R, ratio):
+    r"""[K, M] seed 001's motion distance: the squared Mahalanobis distance of
+    :math:`y = (z - \hat p,\ v_{kj} - \hat v)` under :math:`S = \hat P + \mathrm{diag}(R,
+    \rho R)`, with :math:`v_{kj} = (z_j - p_{k, t-L_k}) / (L_k \Delta t)` (``velocity``
+    [K, M, 2], from `_baseline`) and :math:`\rho` = ``velocity_noise_ratio``.
+
+    This is open_ptrack's (seed 001's implementation): the velocity is measured over about
+    1 s, from the track's estimate then, and the innovation covariance is that of a
+    measurement of all four states with noise :math:`\mathrm{diag}(R, 16 R)`. Measured over
+    one scan instead (:math:`L = 1`), the term would add nothing: with a constant-velocity
+    prediction :math:`\hat p = p_{t-1} + \hat v \Delta t`, the velocity's innovation is the
+    position's over :math:`\Delta t`. Over L scans it compares the detection with where the
+    track was a second ago, which one noisy estimate of the velocity does not contain."""
     y_pos = zs[None, :, :] - predicted.mean[:, None, :2]                     # [K, M, 2]
-    y_vel = (zs[None, :, :] - previous[:, None, :]) / dt - predicted.mean[:, None, 2:]
-    y = jnp.concatenate([y_pos, y_vel], -1)                                 # [K, M, 4]
-    zero = jnp.zeros_like(R)
-    noise = jnp.concatenate([jnp.concatenate([R, zero], -1),
-                             jnp.concatenate([zero, 2.0 * R / dt ** 2], -1)], -2)  # [M, 4, 4]
-    S = predicted.cov[:, None] + noise[None]                                 # [K, M, 4, 4]
+    y = jnp.concatenate([y_pos, velocity - predicted.mean[:, None, 2:]], -1)  # [K, M, 4]
+    S = predicted.cov[:, None] + _position_velocity_noise(R, ratio)[None]   # [K, M, 4, 4]
     S = 0.5 * (S + jnp.swapaxes(S, -1, -2))
     chol = jnp.linalg.cholesky(S)
     w = jax.scipy.linalg.solve_triangular(chol, y[..., None], lower=True)[..., 0]
     d2 = jnp.sum(w ** 2, -1)
     return jnp.where(jnp.isfinite(d2), d2, jnp.inf)
+
+
+def _position_velocity_noise(R, ratio):
+    r"""[..., 4, 4] :math:`\mathrm{diag}(R, \rho R)` of [..., 2, 2] position noises R."""
+    zero = jnp.zeros_like(R)
+    return jnp.concatenate([jnp.concatenate([R, zero], -1),
+                            jnp.concatenate([zero, ratio * R], -1)], -2)
 
 
 def associate(hypotheses: Hypotheses, params: TrackerParams) -> Association:
@@ -784,7 +837,7 @@ def associate_gnn(hypotheses: Hypotheses, params: TrackerParams) -> Association:
             - params.beta * h.confidence.astype(dtype)[None, :])
     col = association.gnn(jnp.where(h.gated, cost, jnp.inf), h.gated, track_mask=h.live,
                           meas_mask=h.mask)
-    return _hard_update(h, col)
+    return _hard_update(h, col, params)
 
 
 def associate_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Association:
@@ -865,7 +918,7 @@ def associate_nn_jpda(hypotheses: Hypotheses, params: TrackerParams) -> Associat
     if params.config.sensor_update == "sequential":
         return _sequential_update(h, params, hard=True)
     col = jnp.where(h.live, association.nn_jpda(_marginals(h, params)), -1)
-    return _hard_update(h, col)
+    return _hard_update(h, col, params)
 
 
 def _sequential_update(h, params, hard):
@@ -983,11 +1036,15 @@ def manage(state: Tracks, hypotheses: Hypotheses, assoc: Association,
                              "mode posteriors (assoc.modes), as the associate_* stages give")
         modes = assoc.modes
 
+    # The trail moves on by one scan: the position before this scan becomes its newest.
+    trail = jnp.concatenate([state.mean[:, None, :2], state.trail[:, :-1]], 1)[
+        :, :cfg.trail_length]
+
     free = status == FREE
     return Tracks(mean, cov, jnp.where(free, -1, state.id), jnp.where(free, 0, age),
                   jnp.where(free, 0, hits), jnp.where(free, 0, misses),
                   jnp.where(free, 0, history), status, head, app, state.next_id,
-                  state.num_dropped, modes)
+                  state.num_dropped, modes, trail)
 
 
 def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
@@ -1066,7 +1123,8 @@ def births(tracks: Tracks, hypotheses: Hypotheses, assoc: Association,
         appearance.Appearance(put(app.weights, jnp.zeros((M, cfg.num_features), dtype)),
                               put(app.bias, jnp.zeros(M, dtype))),
         tracks.next_id + num_born,
-        tracks.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32), modes)
+        tracks.num_dropped + jnp.sum(eligible & ~born).astype(jnp.int32), modes,
+        put(tracks.trail, jnp.broadcast_to(h.zs[:, None], (M, cfg.trail_length, 2))))
     return Births(new, born, slot)
 
 
@@ -1095,19 +1153,33 @@ def _marginals(h, params):
                                       h.mask, params.config.jpda_method, log=True)
 
 
-def _hard_update(h, col):
+def _hard_update(h, col, params):
     r"""`Association` of one detection per track (col [K], -1 none): a Kalman update each (of
     each mode with ``motion="imm"``, whose probabilities then follow each mode's likelihood of
-    the detection, :math:`\mu_i^+ \propto c_i N(z; H m_i, S_i)`; unchanged without one)."""
+    the detection, :math:`\mu_i^+ \propto c_i N(z; H m_i, S_i)`; unchanged without one).
+
+    With ``motion_term="position_velocity"`` the update measures position and velocity,
+    :math:`(z_j, v_{kj})` with :math:`H = I_4` and noise :math:`\mathrm{diag}(R, \rho R)`, as
+    open_ptrack's filter does (``KalmanFilter::update(x, y, vx, vy)``)."""
     M = h.zs.shape[0]
-    H = _position(h.zs.dtype)
     hit = col >= 0
     used = jnp.zeros(M, bool).at[jnp.where(hit, col, M)].set(True, mode="drop")
+    if h.velocity is None or M == 0:
+        zs, H, R, sensor, rows = h.zs, _position(h.zs.dtype), h.R, h.sensor, col
+    else:
+        # Each track measures its own velocity of the detection: one measurement row per track.
+        K = col.shape[0]
+        j = jnp.clip(col, 0, M - 1)
+        v = jnp.take_along_axis(h.velocity, j[:, None, None], 1)[:, 0]           # [K, 2]
+        zs = jnp.concatenate([h.zs[j], v], -1)                                   # [K, 4]
+        H = jnp.eye(4, dtype=h.zs.dtype)
+        R = _position_velocity_noise(h.R[h.sensor[j]], params.config.velocity_noise_ratio)
+        sensor, rows = jnp.arange(K), jnp.where(hit, jnp.arange(K), -1)
     if h.modes is None:
-        posts, _ = association.nn_update(h.predicted, h.zs, col, H, h.R, sensor=h.sensor,
+        posts, _ = association.nn_update(h.predicted, zs, rows, H, R, sensor=sensor,
                                          track_mask=h.live)
         return Association(posts, hit, col, used)
-    updates = [association.nn_update(g, h.zs, col, H, h.R, sensor=h.sensor, track_mask=h.live)
+    updates = [association.nn_update(g, zs, rows, H, R, sensor=sensor, track_mask=h.live)
                for g in _mode_gaussians(h.modes)]
     log_lik = jnp.stack([ll for _, ll in updates], -1)  # [K, D], 0 without a detection
     posts, modes = _imm_posterior(h, [g for g, _ in updates], log_lik)
@@ -1202,6 +1274,9 @@ def _check_tracks_shape(name, tracks, cfg):
     _checks.check_shape(f"{name}.modes.means", tracks.modes.means,
                         (cfg.capacity, cfg.num_modes, 4),
                         f'the motion of params.config ("{cfg.motion}"; build with init(config))')
+    _checks.check_shape(f"{name}.trail", tracks.trail, (cfg.capacity, cfg.trail_length, 2),
+                        "the motion_term and velocity_window of params.config (build with "
+                        "init(config))")
 
 
 def _check(state, det, params):

@@ -119,7 +119,7 @@ class Pipeline:
 
     Attributes:
       subcluster: head sub-clustering (else one detection per cluster).
-      velocity: velocity in the Mahalanobis motion term.
+      velocity: velocity in the Mahalanobis motion term, measured over 1 s (open_ptrack).
       appearance: the online colour classifier's term.
       confidence: the HOG confidence in the cost and for track births.
       gamma, alpha, beta: the cost weights of eq. 2.
@@ -162,7 +162,8 @@ class Pipeline:
             motion_term="position_velocity" if self.velocity else "position",
             distance="mahalanobis", num_features=bins ** 3 if self.appearance else 0,
             confirm_hits=3, confirm_window=5, max_misses=10, max_tentative_misses=2,
-            merge_distance=0.3, births_in_gates=True)
+            merge_distance=0.3, births_in_gates=True,
+            velocity_window=max(1, round(cfg.rate)))     # 1 s, as open_ptrack
         return tracking.TrackerParams.create(
             tc, dt=1.0 / cfg.rate, q=1.0, r_std=(0.15,), init_speed_std=1.0,
             gamma=self.gamma, alpha=self.alpha if self.appearance else 0.0,

@@ -402,41 +402,145 @@ def test_associate_gnn_is_the_brute_force_optimum_of_the_three_term_cost():
     check_hard_update(assoc, col, mean, cov, det, live)
 
 
+def velocity_stage_scene(params, seed=0):
+    """`stage_scene` with a trail of earlier positions and ages / misses that exercise each
+    clamp of open_ptrack's baseline (window 4 scans): a full window, a young track, a miss
+    streak longer than the window, one longer than twice the window."""
+    state, det = stage_scene(params, seed)
+    rng = np.random.default_rng(seed + 1)
+    K, T = params.config.capacity, params.config.trail_length
+    trail = np.asarray(state.mean)[:, None, :2] - 0.07 * np.arange(1, T + 1)[None, :, None]
+    trail = trail + 0.03 * rng.standard_normal((K, T, 2))
+    state = state._replace(trail=jnp.asarray(trail),
+                           age=jnp.asarray([12, 9, 2, 12, 0, 0], jnp.int32),
+                           misses=jnp.asarray([0, 5, 1, 9, 0, 0], jnp.int32))
+    return state, det
+
+
+def reference_baseline(state, params):
+    """open_ptrack's ``Track::getMahalanobisDistance`` in seconds: the baseline starts at
+    max(first detection, now - 1 window), then min(., last detection), then
+    max(., now - 2 windows); the position there is the track's estimate of that scan."""
+    dt, L = 0.1, params.config.velocity_window
+    now = 100.0
+    first = now - (np.asarray(state.age) + 1) * dt
+    last = now - (np.asarray(state.misses) + 1) * dt
+    t = np.maximum(first, now - L * dt)
+    t = np.minimum(t, last)
+    t = np.maximum(t, now - 2 * L * dt)
+    lag = np.rint((now - t) / dt).astype(int)
+    earlier = np.concatenate([np.asarray(state.mean)[:, None, :2], np.asarray(state.trail)], 1)
+    return earlier[np.arange(len(lag)), lag - 1], lag * dt
+
+
 def reference_position_velocity_d2(state, det, params):
-    """Seed 001's motion distance in numpy: position and implied velocity against the
-    prediction, S = P + diag(R, 2 R / dt^2)."""
+    """Seed 001's motion distance as open_ptrack computes it, in numpy: position and the
+    velocity measured from the track's position at the baseline's start, against the
+    prediction, S = P + diag(R, 16 R)."""
     mean, cov, live = reference_prediction(state, params)
-    prev = np.asarray(state.mean)[:, :2]
+    past, span = reference_baseline(state, params)
     z, present = np.asarray(det.positions), np.asarray(det.mask)
     present = present & np.all(np.isfinite(z), -1)
     K, M = len(mean), len(z)
-    d2 = np.full((K, M), np.inf)
+    d2, vel = np.full((K, M), np.inf), np.zeros((K, M, 2))
     for k in np.flatnonzero(live):
         for j in np.flatnonzero(present):
             r2 = SENSOR_STD[np.asarray(det.sensor)[j]] ** 2
-            y = np.r_[z[j] - mean[k, :2], (z[j] - prev[k]) / 0.1 - mean[k, 2:]]
-            S = cov[k] + np.diag([r2, r2, 2 * r2 / 0.01, 2 * r2 / 0.01])
+            vel[k, j] = (z[j] - past[k]) / span[k]
+            y = np.r_[z[j] - mean[k, :2], vel[k, j] - mean[k, 2:]]
+            S = cov[k] + np.diag([r2, r2, 16 * r2, 16 * r2])
             d2[k, j] = y @ np.linalg.solve(S, y)
-    return d2, d2 <= chi2.ppf(float(params.gate_prob), 4)
+    return d2, d2 <= chi2.ppf(float(params.gate_prob), 4), vel
 
 
 @pytest.mark.parametrize("distance", ["squared", "mahalanobis"])
 def test_gnn_with_seed_001s_position_and_velocity_distance_is_the_brute_force_optimum(distance):
     params = stage_params(num_features=3, alpha=0.7, beta=2.0, motion_term="position_velocity",
-                          distance=distance)
-    state, det = stage_scene(params)
+                          velocity_window=4, distance=distance)
+    state, det = velocity_stage_scene(params)
+    _, span = reference_baseline(state, params)
+    np.testing.assert_allclose(span[:4], [0.4, 0.6, 0.3, 0.8])   # each clamp once
     hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
-    d2, gated = reference_position_velocity_d2(state, det, params)
+    d2, gated, vel = reference_position_velocity_d2(state, det, params)
     finite = np.isfinite(d2)
     np.testing.assert_allclose(np.asarray(hyp.motion_d2)[finite], d2[finite], rtol=1e-9)
+    assert not np.isfinite(np.asarray(hyp.motion_d2)[~finite]).any()
+    np.testing.assert_allclose(np.asarray(hyp.velocity)[finite], vel[finite], rtol=1e-12)
     np.testing.assert_array_equal(np.asarray(hyp.gated), gated)
     assoc = tracker.associate_gnn(hyp, params)
     motion = np.sqrt(d2) if distance == "mahalanobis" else d2
     cost = motion - 0.7 * np.asarray(hyp.appearance) - 2.0 * np.asarray(det.confidence)[None]
     col = brute_force_gnn(cost, gated)
     assert (col >= 0).sum() >= 2
+    np.testing.assert_array_equal(np.asarray(assoc.col), col)
+    # The update measures position and velocity (open_ptrack's 4-output observe model).
     mean, cov, live = reference_prediction(state, params)
-    check_hard_update(assoc, col, mean, cov, det, live)
+    z = np.asarray(det.positions)
+    for k in range(len(col)):
+        m, P = mean[k], cov[k]
+        if col[k] >= 0:
+            r2 = SENSOR_STD[np.asarray(det.sensor)[col[k]]] ** 2
+            m, P = kalman_posterior(m, P, np.r_[z[col[k]], vel[k, col[k]]], np.eye(4),
+                                    np.diag([r2, r2, 16 * r2, 16 * r2]))
+        np.testing.assert_allclose(np.asarray(assoc.posterior.mean[k]), m, rtol=1e-9,
+                                   atol=1e-12)
+        np.testing.assert_allclose(np.asarray(assoc.posterior.cov[k]), P, rtol=1e-8,
+                                   atol=1e-12)
+
+
+def test_over_one_scan_the_velocity_term_only_rescales_the_position_term():
+    """With a baseline of one scan the velocity's innovation is the position's over dt (the
+    prediction is p + v dt): the distance is a fixed quadratic form of the position innovation
+    alone. Checked through the closed form with S's Schur complement."""
+    params = stage_params(motion_term="position_velocity", velocity_window=1)
+    state, det = stage_scene(params)
+    state = state._replace(age=jnp.zeros(6, jnp.int32))
+    hyp = tracker.hypothesise(state, tracker.predict(state, params), det, params)
+    mean, cov, live = reference_prediction(state, params)
+    z = np.asarray(det.positions)
+    for k in np.flatnonzero(live):
+        for j in range(4):
+            r2 = SENSOR_STD[np.asarray(det.sensor)[j]] ** 2
+            e = z[j] - mean[k, :2]
+            y = np.r_[e, e / 0.1]
+            S = cov[k] + np.diag([r2, r2, 16 * r2, 16 * r2])
+            np.testing.assert_allclose(float(hyp.motion_d2[k, j]), y @ np.linalg.solve(S, y),
+                                       rtol=1e-9)
+
+
+def test_the_trail_holds_each_tracks_earlier_estimates_newest_first():
+    """Run over scans of two walkers with gaps: after each scan, trail[k, i] is the track's
+    mean i + 1 scans earlier while it lived, and its first position before that."""
+    cfg = tracking.TrackerConfig(capacity=4, association="gnn", motion_term="position_velocity",
+                                 velocity_window=3, confirm_hits=2, max_misses=4)
+    params = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.1,),
+                                           dtype=jnp.float64)
+    T = 14
+    t = np.arange(T) * 0.1
+    z = np.stack([np.stack([-1 + 0.8 * t, 0.3 * t], -1), np.stack([2 - 0.5 * t, 1 + 0 * t], -1)],
+                 1)
+    mask = np.ones((T, 2), bool)
+    mask[5:7, 0] = False                     # the first walker is missed twice
+    mask[:4, 1] = False                      # the second appears at scan 4
+    det = tracking.Detections(jnp.asarray(z), jnp.asarray(mask), jnp.zeros((T, 2), jnp.int32),
+                              jnp.ones((T, 2)), jnp.zeros((T, 2, 0)))
+    _, seq = jax.jit(tracking.run)(tracking.init(cfg, jnp.float64), det, params)
+    ids, mean, trail = (np.asarray(seq.id), np.asarray(seq.mean), np.asarray(seq.trail))
+    assert trail.shape == (T, 4, 5, 2)
+    checked = 0
+    for s in range(T):
+        for k in np.flatnonzero(ids[s] >= 0):
+            born = s - int(np.asarray(seq.age)[s, k])
+            for i in range(5):
+                src = s - 1 - i
+                want = mean[src, k, :2] if src >= born else mean[born, k, :2]
+                np.testing.assert_allclose(trail[s, k, i], want, rtol=0, atol=1e-12)
+                checked += 1
+    assert checked > 80
+    # Tracks built for a config without the trail are refused with a clear error.
+    plain = tracking.init(tracking.TrackerConfig(capacity=4, association="gnn"), jnp.float64)
+    with pytest.raises(ValueError, match="trail"):
+        tracking.step(plain, jax.tree_util.tree_map(lambda x: x[0], det), params)
 
 
 def test_detections_without_features_never_train_the_colour_classifier():
@@ -472,6 +576,12 @@ def test_detections_without_features_never_train_the_colour_classifier():
 def test_velocity_term_needs_gnn():
     with pytest.raises(ValueError, match="position_velocity"):
         tracking.TrackerConfig(association="jpda", motion_term="position_velocity")
+    for bad in (0, 2.5):
+        with pytest.raises(ValueError, match="velocity_window"):
+            tracking.TrackerConfig(association="gnn", velocity_window=bad)
+    for bad in (0.0, float("nan")):
+        with pytest.raises(ValueError, match="velocity_noise_ratio"):
+            tracking.TrackerConfig(association="gnn", velocity_noise_ratio=bad)
     with pytest.raises(ValueError, match="distance"):
         tracking.TrackerConfig(association="gnn", distance="l1")
 
