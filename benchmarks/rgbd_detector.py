@@ -9,12 +9,13 @@ The clouds are simulated Kinect frames of the rgbd-people scenario (`sims.follow
 
 - **jaxtrack, one frame**: `rgbd_people.detect` (voxel grid, RANSAC ground plane, Euclidean
   clustering, merging, head sub-clustering, histograms), jitted, one frame per call;
-- **jaxtrack, batch, vmap**: the same vmapped over ``--batch`` episodes' frames in one call
-  (per frame);
-- **jaxtrack, batch, lax.map**: the same batch in one call, the frames one after the other
-  (`jax.lax.map`): on a CPU, vmap's batched gathers and scatters index with (episode, row)
-  pairs, which XLA runs as scalar loops;
-- **+ HOG**: with the HOG + SVM confidence of every detection;
+- **jaxtrack, batch, vmap**: `rgbd_people.detect_batch(method="vmap")`, ``--batch``
+  episodes' frames in one call (per frame);
+- **jaxtrack, batch, lax.map**: `rgbd_people.detect_batch(method="map")`, the same batch in
+  one call, the frames one after the other (the default on a CPU: vmap's batched gathers and
+  scatters index with (episode, row) pairs, which XLA runs as scalar loops);
+- **+ HOG**: with the HOG + SVM confidence of every detection, one frame per call and batched
+  by lax.map;
 - **Open3D**: ``voxel_down_sample`` (0.06 m) + ``segment_plane`` (0.06 m, 32 iterations, the
   same number of hypotheses) + ``cluster_dbscan`` (0.12 m, one point) on the same cloud,
   converted once beforehand; its three stages only, so it does less than the pipeline.
@@ -59,6 +60,7 @@ def _frames(width, height, n, seed):
 
 def run(args):
     import jax
+    import jax.numpy as jnp
     import numpy as np
 
     from jaxtrack.perception import hog, rgbd_people
@@ -84,11 +86,19 @@ def run(args):
                          .people.position)
         with_hog = jax.jit(lambda p, m, c, im: rgbd_people.detect(
             cfg, state, key, p, m, c, eye, image=im, camera=camera, svm=svm)[1].confidence)
-        batched = jax.jit(jax.vmap(lambda p, m, c: rgbd_people.detect(cfg, state, key, p, m, c,
-                                                                      eye)[1].people.position))
-        mapped = jax.jit(lambda p, m, c: jax.lax.map(lambda x: rgbd_people.detect(
-            cfg, state, key, *x, eye)[1].people.position, (p, m, c)))
         b = min(args.batch, args.frames)
+        states = jax.tree_util.tree_map(lambda x: jnp.stack([x] * b), state)
+        keys, eyes = jax.random.split(key, b), jnp.stack([eye] * b)
+
+        def batch_of(method, hog_=False):
+            def f(p, m, c, im):
+                extra = dict(image=im, camera=camera, svm=svm) if hog_ else {}
+                frame = rgbd_people.detect_batch(cfg, states, keys, p, m, c, eyes,
+                                                 method=method, **extra)[1]
+                return frame.confidence if hog_ else frame.people.position
+            return jax.jit(f)
+
+        batched, mapped, mapped_hog = batch_of("vmap"), batch_of("map"), batch_of("map", True)
         clouds = []
         for i in range(args.frames):
             sel = np.asarray(ok[i])
@@ -112,7 +122,7 @@ def run(args):
         def jax_hog():
             return [with_hog(*f) for f in frames]
 
-        batches = [(pts[i:i + b], ok[i:i + b], rgb[i:i + b])
+        batches = [(pts[i:i + b], ok[i:i + b], rgb[i:i + b], colour[i:i + b])
                    for i in range(0, args.frames - b + 1, b)]
 
         def jax_batch():
@@ -121,21 +131,23 @@ def run(args):
         def jax_map():
             return [mapped(*x) for x in batches]
 
+        def jax_map_hog():
+            return [mapped_hog(*x) for x in batches]
+
         calls = {"open3d": (open3d_pipeline, ()), "one": (jax_one, ()), "hog": (jax_hog, ()),
-                 "batch": (jax_batch, ()), "map": (jax_map, ())}
-        res = _common.time_interleaved(calls, repeats=args.repeats, compiled=("one", "hog",
-                                                                              "batch", "map"))
-        per = {"open3d": res["open3d"][0].seconds / args.frames,
-               "one": res["one"][0].seconds / args.frames,
-               "hog": res["hog"][0].seconds / args.frames,
-               "batch": res["batch"][0].seconds / (b * (args.frames // b)),
-               "map": res["map"][0].seconds / (b * (args.frames // b))}
+                 "batch": (jax_batch, ()), "map": (jax_map, ()), "maphog": (jax_map_hog, ())}
+        res = _common.time_interleaved(calls, repeats=args.repeats,
+                                       compiled=("one", "hog", "batch", "map", "maphog"))
+        per = {name: res[name][0].seconds / args.frames for name in ("open3d", "one", "hog")}
+        per.update({name: res[name][0].seconds / (b * (args.frames // b))
+                    for name in ("batch", "map", "maphog")})
         voxels = np.mean([len(c.voxel_down_sample(0.06).points) for c in clouds])
         label = f"{width} x {height}"
         for name, title in (("one", "jaxtrack, one frame"),
                             ("batch", f"jaxtrack, batch of {b}, vmap"),
                             ("map", f"jaxtrack, batch of {b}, lax.map"),
                             ("hog", "jaxtrack + HOG, one frame"),
+                            ("maphog", f"jaxtrack + HOG, batch of {b}, lax.map"),
                             ("open3d", "Open3D voxel + plane + DBSCAN")):
             rows.append([label, title, f"{int(np.mean(np.sum(np.asarray(ok), 1)))}",
                          f"{voxels:.0f}", f"{1e3 * per[name]:.2f}", f"{1 / per[name]:.0f}",

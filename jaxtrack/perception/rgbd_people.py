@@ -21,7 +21,8 @@ One frame (seed 001, section III), each stage a function of its own module:
    them, 1.
 
 The frame's state is the ground plane, carried to the next frame. Everything is fixed-shape:
-the step is jittable and vmappable over episodes.
+the step is jittable and vmappable over episodes; `detect_batch` runs a batch of episodes'
+frames in the way that is fastest on the backend.
 
 Example:
   >>> cfg = RGBDPeopleConfig()
@@ -39,8 +40,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
-from jaxtrack import _checks
+from jaxtrack import _checks, _gather
 from jaxtrack.perception import euclidean_clustering, ground_plane, head_subclustering, hog
 from jaxtrack.perception.euclidean_clustering import Clusters, connected_components
 from jaxtrack.perception.ground_plane import PlaneFit
@@ -50,7 +52,7 @@ from jaxtrack.perception.voxel_grid import GridSpec, VoxelGrid, grid_neighbours,
 Array = jax.Array
 
 __all__ = ["RGBDPeopleConfig", "RGBDPeopleState", "RGBDPeopleFrame", "init_state", "detect",
-           "colour_histograms"]
+           "detect_batch", "colour_histograms"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,6 +191,79 @@ def detect(config: RGBDPeopleConfig, state: RGBDPeopleState, key: Array, points:
     # be dispatched on their own (a first frame took 11.6 s that way, 2.0 s compiled). Inside
     # a caller's jit this inlines.
     return _detect(config, state, key, points, mask, colours, viewpoint, image, camera, svm)
+
+
+def detect_batch(config: RGBDPeopleConfig, state: RGBDPeopleState, key: Array, points: Array,
+                 mask: Array | None, colours: Array | None, viewpoint: Array, *,
+                 image: Array | None = None, camera: hog.PinholeCamera | None = None,
+                 svm: hog.LinearSVM | None = None,
+                 method: str | None = None) -> tuple[RGBDPeopleState, RGBDPeopleFrame]:
+    """Detect the people in one frame of each of B episodes: `detect` over a leading axis.
+
+    ``method``: "map" runs the frames one after the other (`jax.lax.map`), each with its
+    inputs first written to memory; "vmap" runs them as one batched program (`jax.vmap`);
+    None picks "map" on a CPU and "vmap" elsewhere. Their outputs are the same. On a CPU,
+    vmap's batched gathers and scatters index with (episode, row) pairs and run as scalar
+    loops, and a loop body that reads slices of its input fuses the slicing into every
+    per-point operation: a QVGA frame took 5.4 ms batched by vmap, 4.2 ms by a plain lax.map
+    and 3.5 ms by this one, against 3.2 ms alone (`benchmarks/rgbd_detector.py`). On a GPU
+    the batch's parallelism is what pays.
+
+    Args:
+      config: `RGBDPeopleConfig`.
+      state: `RGBDPeopleState` with plane [B, 4].
+      key: [B] PRNG keys.
+      points: [B, N, 3]; mask: [B, N] or None; colours: [B, N, 3] or None; viewpoint: [B, 3].
+      image: [B, h, w, 3] or None; camera, svm: shared by the episodes (see `detect`).
+      method: "map", "vmap" or None.
+
+    Returns:
+      (new states [B], `RGBDPeopleFrame` with a leading [B] axis on every leaf).
+
+    Example:
+      >>> states = jax.vmap(lambda _: init_state(cfg))(jnp.arange(B))
+      >>> states, frames = detect_batch(cfg, states, keys, points, valid, colours, eyes)
+      >>> frames.people.mask.shape                      # (B, H)
+    """
+    if method is None:
+        method = "map" if jax.default_backend() == "cpu" else "vmap"
+    _checks.check_options("method", (method,), ("map", "vmap"))
+    _checks.check_shape("points", points, (None, None, 3), "[B, N, 3] points")
+    B, n = _checks.shape_of(points)[:2]
+    for name, x, shape in (("state.plane", state.plane, (B, 4)), ("viewpoint", viewpoint, (B, 3)),
+                           ("mask", mask, (B, n)), ("colours", colours, (B, n, 3))):
+        if x is not None:
+            _checks.check_shape(name, x, shape, f"a leading batch axis of {B}")
+    if _checks.shape_of(key)[:1] != (B,):
+        raise ValueError(f"key must hold one PRNG key per episode, [{B}]; got shape "
+                         f"{_checks.shape_of(key)}")
+    if image is not None and camera is not None and svm is not None:
+        _checks.check_ndim("image", image, 4, "[B, h, w, 3] RGB images")
+        if _checks.shape_of(image)[0] != B:
+            raise ValueError(f"image must have a leading batch axis of {B}; got "
+                             f"{_checks.shape_of(image)}")
+    if not jnp.issubdtype(jnp.asarray(points).dtype, jnp.floating):
+        raise TypeError(f"points must be floating; got {jnp.asarray(points).dtype}")
+    return _detect_batch(config, method, state, key, points, mask, colours, viewpoint, image,
+                         camera, svm)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _detect_batch(cfg, method, state, key, points, mask, colours, viewpoint, image, camera,
+                  svm):
+    def one(x):
+        st, k, p, m, c, v, im = x
+        if method == "map":
+            # The points written to memory once: XLA otherwise fuses the loop's slicing of its
+            # input into every per-point operation of the voxel grid, which then runs 2-4x
+            # slower. The other inputs are read once each, and copying them costs more than
+            # it saves (QVGA with HOG: 4.98 ms without, 3.94 with the points alone, 4.36 with
+            # every input).
+            p = _gather.materialised(p)
+        return _detect(cfg, st, k, p, m, c, v, im, camera, svm)
+
+    xs = (state, key, jnp.asarray(points), mask, colours, viewpoint, image)
+    return lax.map(one, xs) if method == "map" else jax.vmap(one)(xs)
 
 
 @functools.partial(jax.jit, static_argnums=0)

@@ -108,17 +108,64 @@ def test_empty_and_all_invalid_clouds_give_no_people_and_keep_the_plane():
         np.testing.assert_allclose(state.plane, prior.plane)
 
 
-def test_vmap_over_episodes_equals_one_by_one():
-    clouds = [_cloud(s) for s in (3, 4)]
+def _batch(method, hog_=False):
+    """Two episodes' clouds (one with a lifted floor and its own plane prior, a point mask),
+    detect_batch's output and each episode's `detect` alone."""
+    clouds = [_cloud(3), _cloud(4, lift=0.05)]
     pts = jnp.asarray(np.stack([c[0] for c in clouds]), jnp.float32)
     rgb = jnp.asarray(np.stack([c[1] for c in clouds]), jnp.float32)
+    mask = jnp.asarray(np.random.default_rng(5).uniform(size=pts.shape[:2]) > 0.1)
     keys = jax.random.split(jax.random.key(0), 2)
-    state = rgbd_people.init_state(CFG)
-    batched = jax.jit(jax.vmap(lambda k, p, c: rgbd_people.detect(
-        CFG, state, k, p, None, c, EYE)[1].people.position))(keys, pts, rgb)
-    for i in range(2):                   # the same compiled call as the float32 test's
-        one = _detect(CFG, state, keys[i], pts[i], None, rgb[i], EYE)[1].people.position
-        np.testing.assert_allclose(batched[i], one, atol=1e-5)
+    states = rgbd_people.RGBDPeopleState(jnp.stack([rgbd_people.init_state(CFG).plane,
+                                                    rgbd_people.init_state(CFG, 0.05).plane]))
+    eyes = jnp.stack([EYE, EYE + 0.05])
+    extra = {}
+    if hog_:
+        rot = jnp.asarray([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+        camera = hog.PinholeCamera(jnp.asarray([150.0, 150.0]), jnp.asarray([80.0, 60.0]),
+                                   EYE, rot)
+        svm = hog.LinearSVM(jax.random.normal(jax.random.key(2), (hog.num_features(),)) * 0.05,
+                            jnp.asarray(0.1))
+        extra = dict(image=jax.random.uniform(jax.random.key(1), (2, 120, 160, 3)),
+                     camera=camera, svm=svm)
+    got = rgbd_people.detect_batch(CFG, states, keys, pts, mask, rgb, eyes, method=method,
+                                   **extra)
+    alone = []
+    for i in range(2):
+        one = {k: (v[i] if k == "image" else v) for k, v in extra.items()}
+        alone.append(_detect(CFG, rgbd_people.RGBDPeopleState(states.plane[i]), keys[i], pts[i],
+                             mask[i], rgb[i], eyes[i], **one))
+    return got, alone
+
+
+@pytest.mark.parametrize("method, hog_", [("map", True), ("vmap", False)])
+def test_detect_batch_equals_each_episode_alone(method, hog_):
+    (states, frames), alone = _batch(method, hog_)
+    for i, (state, frame) in enumerate(alone):
+        np.testing.assert_array_equal(frames.people.mask[i], frame.people.mask)
+        assert int(frame.people.mask.sum()) >= 2
+        np.testing.assert_allclose(frames.people.position[i], frame.people.position, atol=1e-5)
+        np.testing.assert_allclose(frames.histograms[i], frame.histograms, atol=1e-5)
+        np.testing.assert_allclose(frames.confidence[i], frame.confidence, atol=1e-4)
+        np.testing.assert_allclose(states.plane[i], state.plane, atol=1e-5)
+    if hog_:
+        assert float(jnp.abs(frames.confidence).sum()) > 0
+
+
+def test_detect_batch_refuses_bad_input():
+    state = rgbd_people.RGBDPeopleState(jnp.stack([rgbd_people.init_state(CFG).plane] * 2))
+    keys = jax.random.split(jax.random.key(0), 2)
+    pts, eyes = jnp.zeros((2, 5, 3)), jnp.zeros((2, 3))
+    with pytest.raises(ValueError, match="method"):
+        rgbd_people.detect_batch(CFG, state, keys, pts, None, None, eyes, method="pmap")
+    with pytest.raises(ValueError, match="points"):
+        rgbd_people.detect_batch(CFG, state, keys, pts[0], None, None, eyes)
+    with pytest.raises(ValueError, match="key"):
+        rgbd_people.detect_batch(CFG, state, keys[:1], pts, None, None, eyes)
+    with pytest.raises(ValueError, match="viewpoint"):
+        rgbd_people.detect_batch(CFG, state, keys, pts, None, None, eyes[0])
+    with pytest.raises(ValueError, match="mask"):
+        rgbd_people.detect_batch(CFG, state, keys, pts, jnp.ones((2, 4), bool), None, eyes)
 
 
 @pytest.mark.parametrize("kw, match", [(dict(points=np.zeros((5, 2))), "points"),
