@@ -149,14 +149,18 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
         c = jnp.floor(jnp.clip(jnp.where(valid, rel, -1.0), -1.0, 2.0**30)).astype(jnp.int32)
         inside &= (c >= 0) & (c < spec.shape[a])
         ijk.append(c)
-    col = ijk[0] * spec.shape[1] + ijk[1]
+    # Each point's cell (-1 outside), written to memory once: XLA otherwise recomputes it
+    # (the finite tests, the clip, the floor) inside each of its four consumers.
+    linear = _rows_materialised(jnp.where(
+        inside, (ijk[0] * spec.shape[1] + ijk[1]) * spec.shape[2] + ijk[2], -1))
+    inside = linear >= 0
+    col, ijk[2] = linear // spec.shape[2], linear % spec.shape[2]
     rank = _cell_ranks(spec, col, ijk[2], inside)
     kept = inside & (rank < capacity)
     point_voxel = jnp.where(kept, rank, -1)
     seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
     # Each row's cell, written by its points (a voxel's points all write the same cell).
-    cells = put(jnp.full(capacity + 1, total, jnp.int32), seg,
-                col * spec.shape[2] + ijk[2])[:capacity]
+    cells = put(jnp.full(capacity + 1, total, jnp.int32), seg, linear)[:capacity]
 
     # (`segment_sum`, `take` and `put` of `jaxtrack._gather`: cheap under vmap as well)
     counts = segment_sum(jnp.ones(n, jnp.int32), seg, capacity + 1)[:capacity]
@@ -177,6 +181,15 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
                      counts=counts, cells=jnp.where(vmask[:, None], cell_ijk, -1), mask=vmask,
                      point_voxel=point_voxel.astype(jnp.int32),
                      num_dropped=num_dropped.astype(jnp.int32))
+
+
+def _rows_materialised(x: Array) -> Array:
+    """[N] ``x`` written to memory (`materialised`) as rows of 64 when N allows: one scatter
+    of a few long rows instead of N single elements."""
+    n = x.shape[0]
+    if n % 64:
+        return materialised(x)
+    return materialised(x.reshape(64, n // 64)).reshape(n)
 
 
 _WORD_BITS = 24     # cells per packed word of `_cell_ranks` (exact in float32)
