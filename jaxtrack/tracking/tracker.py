@@ -52,6 +52,7 @@ also call one by one (e.g. to read the association of a scan) -- Stone Soup's tr
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from typing import NamedTuple
 
 import jax
@@ -181,7 +182,8 @@ class TrackerConfig:
                              'JPDA likelihoods are those of the position)')
         if self.capacity < 1:
             raise ValueError(f"capacity must be >= 1; got {self.capacity}")
-        if not (isinstance(self.velocity_window, int) and self.velocity_window >= 1):
+        if not (isinstance(self.velocity_window, numbers.Integral)
+                and not isinstance(self.velocity_window, bool) and self.velocity_window >= 1):
             raise ValueError(f"velocity_window must be an int >= 1 (scans); got "
                              f"{self.velocity_window!r}")
         if not (np.isfinite(self.velocity_noise_ratio) and self.velocity_noise_ratio > 0):
@@ -772,7 +774,8 @@ def _position_velocity_d2(predicted, zs, velocity, R, ratio):
 
     This is open_ptrack's (seed 001's implementation): the velocity is measured over about
     1 s, from the track's estimate then, and the innovation covariance is that of a
-    measurement of all four states with noise :math:`\mathrm{diag}(R, 16 R)`. Measured over
+    measurement of all four states with noise :math:`\mathrm{diag}(R, \rho R)`,
+    :math:`\rho = 16` in open_ptrack. Measured over
     one scan instead (:math:`L = 1`), the term would add nothing: with a constant-velocity
     prediction :math:`\hat p = p_{t-1} + \hat v \Delta t`, the velocity's innovation is the
     position's over :math:`\Delta t`. Over L scans it compares the detection with where the

@@ -576,9 +576,12 @@ def test_detections_without_features_never_train_the_colour_classifier():
 def test_velocity_term_needs_gnn():
     with pytest.raises(ValueError, match="position_velocity"):
         tracking.TrackerConfig(association="jpda", motion_term="position_velocity")
-    for bad in (0, 2.5):
+    for bad in (0, 2.5, True):
         with pytest.raises(ValueError, match="velocity_window"):
             tracking.TrackerConfig(association="gnn", velocity_window=bad)
+    cfg = tracking.TrackerConfig(association="gnn", motion_term="position_velocity",
+                                 velocity_window=np.int64(3))
+    assert cfg.trail_length == 5
     for bad in (0.0, float("nan")):
         with pytest.raises(ValueError, match="velocity_noise_ratio"):
             tracking.TrackerConfig(association="gnn", velocity_noise_ratio=bad)
