@@ -79,7 +79,7 @@ def _segment_sum(num_segments):
             return jax.vmap(op.fun)(data, ids), True
         flat_ids = (ids + _flat_offsets(axis_size, num_segments, ids)).reshape(-1)
         flat = _segment_sum(axis_size * num_segments)(
-            data.reshape((-1,) + data.shape[2:]), flat_ids)
+            data.reshape((axis_size * data.shape[1],) + data.shape[2:]), flat_ids)
         return flat.reshape((axis_size, num_segments) + data.shape[2:]), True
 
     return op
@@ -99,9 +99,10 @@ def _put_batched(axis_size, in_batched, table, index, values):
     size = table.shape[1]
     if axis_size * size >= _INT32_LIMIT:
         return jax.vmap(put.fun)(table, index, values), True
-    flat = put(table.reshape((-1,) + table.shape[2:]),
+    # (explicit leading sizes: -1 is ambiguous when a trailing axis is empty)
+    flat = put(table.reshape((axis_size * size,) + table.shape[2:]),
                (index + _flat_offsets(axis_size, size, index)).reshape(-1),
-               values.reshape((-1,) + values.shape[2:]))
+               values.reshape((axis_size * values.shape[1],) + values.shape[2:]))
     return flat.reshape(table.shape), True
 
 

@@ -79,3 +79,19 @@ def test_batches_too_large_for_int32_offsets_take_jax_rule(monkeypatch):
     np.testing.assert_array_equal(jax.vmap(put)(table, first, values[:, :5]),
                                   jax.vmap(lambda t, i, v: t.at[i].set(v))(table, first,
                                                                           values[:, :5]))
+
+
+def test_empty_trailing_axes_and_empty_rows_under_vmap():
+    """Rows of zero width, and zero rows: shapes as JAX's own operations give them."""
+    index = jnp.zeros((B, 4), jnp.int32)
+    empty = jnp.zeros((B, T, 0))
+    got = jax.vmap(put)(empty, index, jnp.zeros((B, 4, 0)))
+    assert got.shape == (B, T, 0)
+    got = jax.vmap(lambda d, s: segment_sum(d, s, T))(jnp.zeros((B, 4, 0)), index)
+    assert got.shape == (B, T, 0)
+    none = jnp.zeros((B, 0), jnp.int32)
+    table = jnp.ones((B, T, 2))
+    np.testing.assert_array_equal(jax.vmap(put)(table, none, jnp.zeros((B, 0, 2))), table)
+    assert jax.vmap(lambda d, s: segment_sum(d, s, T))(jnp.zeros((B, 0, 2)),
+                                                        none).shape == (B, T, 2)
+    assert jax.vmap(take)(table, none).shape == (B, 0, 2)

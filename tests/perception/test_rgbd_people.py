@@ -152,6 +152,17 @@ def test_detect_batch_equals_each_episode_alone(method, hog_):
         assert float(jnp.abs(frames.confidence).sum()) > 0
 
 
+@pytest.mark.parametrize("B, N, method", [(2, 0, "vmap"), (0, 10, "map")])
+def test_detect_batch_of_empty_clouds_or_no_episodes(B, N, method):
+    state = rgbd_people.RGBDPeopleState(jnp.tile(rgbd_people.init_state(CFG).plane, (B, 1)))
+    keys = jax.random.split(jax.random.key(0), max(B, 1))[:B]
+    new, frames = rgbd_people.detect_batch(CFG, state, keys, jnp.zeros((B, N, 3)), None, None,
+                                           jnp.zeros((B, 3)), method=method)
+    assert frames.people.mask.shape == (B, CFG.heads.max_detections)
+    assert not bool(frames.people.mask.any())
+    np.testing.assert_array_equal(new.plane, state.plane)
+
+
 def test_detect_batch_refuses_bad_input():
     state = rgbd_people.RGBDPeopleState(jnp.stack([rgbd_people.init_state(CFG).plane] * 2))
     keys = jax.random.split(jax.random.key(0), 2)
