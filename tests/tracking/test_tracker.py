@@ -837,9 +837,12 @@ def test_stages_reject_arguments_of_the_wrong_kind():
         tracker.births(tracking.init(tracking.TrackerConfig(capacity=3)), hyp, assoc, params)
 
 
-@pytest.mark.parametrize("assoc", ["jpda", "gnn", "nn_jpda"])
+@pytest.mark.parametrize("assoc", ["jpda", "gnn", "nn_jpda", "gnn+velocity"])
 def test_an_empty_frame_equals_an_all_masked_frame_and_zero_scans_change_nothing(assoc):
-    cfg = tracker.TrackerConfig(capacity=4, association=assoc)
+    extra = {}
+    if assoc == "gnn+velocity":
+        assoc, extra = "gnn", dict(motion_term="position_velocity", velocity_window=2)
+    cfg = tracker.TrackerConfig(capacity=4, association=assoc, **extra)
     params = tracker.TrackerParams.create(cfg, dtype=jnp.float64)
     state = tracker.step(tracker.init(cfg, jnp.float64),
                          tracker.make_detections([[1.0, 2.0], [3.0, 0.5]], 3), params)
