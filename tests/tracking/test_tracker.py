@@ -508,13 +508,13 @@ def test_over_one_scan_the_velocity_term_only_rescales_the_position_term():
                                        rtol=1e-9)
 
 
-def test_the_trail_holds_each_tracks_earlier_estimates_newest_first():
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_the_trail_holds_each_tracks_earlier_estimates_newest_first(dtype):
     """Run over scans of two walkers with gaps: after each scan, trail[k, i] is the track's
     mean i + 1 scans earlier while it lived, and its first position before that."""
     cfg = tracking.TrackerConfig(capacity=4, association="gnn", motion_term="position_velocity",
                                  velocity_window=3, confirm_hits=2, max_misses=4)
-    params = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.1,),
-                                           dtype=jnp.float64)
+    params = tracking.TrackerParams.create(cfg, dt=0.1, q=0.5, r_std=(0.1,), dtype=dtype)
     T = 14
     t = np.arange(T) * 0.1
     z = np.stack([np.stack([-1 + 0.8 * t, 0.3 * t], -1), np.stack([2 - 0.5 * t, 1 + 0 * t], -1)],
@@ -522,9 +522,11 @@ def test_the_trail_holds_each_tracks_earlier_estimates_newest_first():
     mask = np.ones((T, 2), bool)
     mask[5:7, 0] = False                     # the first walker is missed twice
     mask[:4, 1] = False                      # the second appears at scan 4
-    det = tracking.Detections(jnp.asarray(z), jnp.asarray(mask), jnp.zeros((T, 2), jnp.int32),
-                              jnp.ones((T, 2)), jnp.zeros((T, 2, 0)))
-    _, seq = jax.jit(tracking.run)(tracking.init(cfg, jnp.float64), det, params)
+    det = tracking.Detections(jnp.asarray(z, dtype), jnp.asarray(mask),
+                              jnp.zeros((T, 2), jnp.int32), jnp.ones((T, 2), dtype),
+                              jnp.zeros((T, 2, 0), dtype))
+    _, seq = jax.jit(tracking.run)(tracking.init(cfg, dtype), det, params)
+    assert seq.trail.dtype == dtype and np.isfinite(np.asarray(seq.mean)).all()
     ids, mean, trail = (np.asarray(seq.id), np.asarray(seq.mean), np.asarray(seq.trail))
     assert trail.shape == (T, 4, 5, 2)
     checked = 0
@@ -538,7 +540,7 @@ def test_the_trail_holds_each_tracks_earlier_estimates_newest_first():
                 checked += 1
     assert checked > 80
     # Tracks built for a config without the trail are refused with a clear error.
-    plain = tracking.init(tracking.TrackerConfig(capacity=4, association="gnn"), jnp.float64)
+    plain = tracking.init(tracking.TrackerConfig(capacity=4, association="gnn"), dtype)
     with pytest.raises(ValueError, match="trail"):
         tracking.step(plain, jax.tree_util.tree_map(lambda x: x[0], det), params)
 
