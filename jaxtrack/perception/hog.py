@@ -210,8 +210,7 @@ def _planes(image: Array) -> Array:
     """[C, H, W] floating colour planes of an [H, W, C] image. Colour planes first, so that
     every step works on one plane at a time: XLA's CPU loops do not vectorise over a trailing
     axis of 3 channels."""
-    dtype = image.dtype if jnp.issubdtype(image.dtype, jnp.floating) else jnp.float32
-    return jnp.moveaxis(jnp.asarray(image).astype(dtype), -1, 0)
+    return jnp.moveaxis(_floating(image), -1, 0)
 
 
 def _floating(image: Array) -> Array:
