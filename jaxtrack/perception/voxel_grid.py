@@ -154,8 +154,7 @@ def voxelise(spec: GridSpec, points: Array, mask: Array | None = None,
     linear = _rows_materialised(jnp.where(
         inside, (ijk[0] * spec.shape[1] + ijk[1]) * spec.shape[2] + ijk[2], -1))
     inside = linear >= 0
-    col, ijk[2] = linear // spec.shape[2], linear % spec.shape[2]
-    rank = _cell_ranks(spec, col, ijk[2], inside)
+    rank = _cell_ranks(spec, linear // spec.shape[2], linear % spec.shape[2], inside)
     kept = inside & (rank < capacity)
     point_voxel = jnp.where(kept, rank, -1)
     seg = jnp.where(point_voxel >= 0, point_voxel, capacity)
